@@ -1,0 +1,81 @@
+"""The frame model every stage sees (DESIGN.md section 2, docs/conventions.md).
+
+Tensors are torch float32, channel-first (C, H, W). Pixel centres at integer + 0.5, x right,
+y down, origin top-left.
+
+- color: (3, H, W) linear scene-referred RGB (HDR).
+- alpha: (1, H, W) or None; straight (not premultiplied) coverage as read from the file.
+- depth: (1, H, W) linear view depth (along the camera forward axis), > 0, +inf for sky.
+- mv: (2, H, W) pixels, from frame t to frame t-1: prev_xy = xy + mv[:, y, x].
+- mv_valid: (1, H, W) bool or None; False where the layout says the vectors cannot be
+  trusted (e.g. Blender writes 0 for sky pixels even when the camera moves).
+- normal: (3, H, W) world-space unit normals or None; albedo (3, H, W); roughness (1, H, W).
+- camera: Camera or None (world_to_camera and projection, OpenGL conventions).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class Camera:
+    """Per-frame camera. Row-major 4x4 matrices applied to column vectors.
+
+    world_to_camera: camera looks down -Z, +Y up (OpenGL/Blender).
+    projection: camera (view) space -> clip space, NDC y up, x right, NDC in [-1, 1].
+    """
+
+    world_to_camera: np.ndarray
+    projection: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"world_to_camera": np.asarray(self.world_to_camera, dtype=float).tolist(),
+                "projection": np.asarray(self.projection, dtype=float).tolist()}
+
+
+# Names of the tensor fields of Frame, with their channel counts.
+TENSOR_FIELDS = {"color": 3, "alpha": 1, "depth": 1, "mv": 2, "normal": 3, "albedo": 3,
+                 "roughness": 1}
+
+
+@dataclass
+class Frame:
+    number: int
+    color: Any  # torch.Tensor (3, H, W)
+    depth: Any = None
+    mv: Any = None
+    alpha: Any = None
+    normal: Any = None
+    albedo: Any = None
+    roughness: Any = None
+    mv_valid: Any = None
+    camera: Camera | None = None
+    header: dict = field(default_factory=dict)
+    source: str | None = None
+    time: float | None = None  # number + alpha for generated frames; defaults to number
+
+    @property
+    def height(self) -> int:
+        return int(self.color.shape[-2])
+
+    @property
+    def width(self) -> int:
+        return int(self.color.shape[-1])
+
+    @property
+    def t(self) -> float:
+        return float(self.number if self.time is None else self.time)
+
+    def replace(self, **kw) -> "Frame":
+        return replace(self, **kw)
+
+    def to(self, device) -> "Frame":
+        kw = {}
+        for name in list(TENSOR_FIELDS) + ["mv_valid"]:
+            v = getattr(self, name)
+            if v is not None:
+                kw[name] = v.to(device)
+        return replace(self, **kw)

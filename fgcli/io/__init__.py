@@ -1,0 +1,1 @@
+"""EXR I/O: low-level channel access (exr), sequences, layouts, cameras, writers."""
