@@ -25,7 +25,7 @@ FGEN_CHANNELS = {
     "roughness": ["roughness"],
 }
 # fields stored as float32 even when color is half: depth and vectors need the precision
-FLOAT_FIELDS = {"depth", "mv", "normal"}
+FLOAT_FIELDS = {"depth", "mv"}
 
 
 def frame_to_fgen_channels(frame: Frame, half: bool = True) -> tuple[dict, dict]:

@@ -1,0 +1,294 @@
+"""Pipeline files (pipelines/*.toml) checked against the stage registry, and the per-frame
+executor that runs the stages, times each one and skips what a frame does not need.
+
+A pipeline file is data:
+
+    name = "mob-fgsr"
+    description = "..."
+    modes = ["interp", "extrap"]
+    [[stage]]
+    use = "splat"            # registry name
+    id = "splat"             # optional, defaults to `use`; used by --set/--variant
+    modes = ["interp"]       # optional: only in these modes
+    motion = "quadratic"     # stage options
+
+Per-frame context keys (the contract between the runner and stages):
+  inputs : color0, depth0, mv0 (older rendered frame, time 0; None without history in
+           extrapolation), color1, depth1, mv1 (newer rendered frame, time 1), alpha, mode
+           ("interp": target time alpha in (0,1); "extrap": target time 1 + alpha)
+  outputs: color (3,H,W), depth (1,H,W), mv (2,H,W) of the generated frame
+"""
+from __future__ import annotations
+
+import os
+import re
+import time
+from dataclasses import dataclass, field
+
+from fgcli.errors import UsageError
+from fgcli.stages.base import Stage, get_stage
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - python < 3.11
+    import tomli as tomllib
+
+PIPELINE_DIRS = [os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                              "pipelines")]
+TOP_KEYS = {"name", "description", "modes", "stage", "paper", "requires"}
+STAGE_KEYS = {"use", "id", "modes"}
+FINAL_OUTPUTS = ("color", "depth", "mv")
+
+
+@dataclass
+class StageSpec:
+    id: str
+    use: str
+    opts: dict
+    modes: tuple
+    line: int
+    enabled: bool = True
+
+
+@dataclass
+class Pipeline:
+    name: str
+    description: str
+    modes: tuple
+    stages: list[StageSpec]
+    path: str
+    requires: tuple = ("color", "depth", "mv")
+    variant: str | None = None  # label when built from a variant string
+
+    @property
+    def label(self) -> str:
+        return self.variant or self.name
+
+    def with_overrides(self, sets: list[str], label: str | None = None) -> "Pipeline":
+        """Apply `stage.option=value`, `option=value` (unique option) or `stage=off|on`."""
+        import copy
+
+        p = copy.deepcopy(self)
+        for s in sets:
+            if "=" not in s:
+                raise UsageError(f"bad override '{s}' (use stage.option=value)")
+            key, value = s.split("=", 1)
+            key, value = key.strip(), value.strip()
+            if "." in key:
+                sid, opt = key.split(".", 1)
+                targets = [st for st in p.stages if st.id == sid or st.use == sid]
+                if not targets:
+                    raise UsageError(f"pipeline '{p.name}' has no stage '{sid}' "
+                                     f"(stages: {', '.join(st.id for st in p.stages)})")
+                for st in targets:
+                    cls = get_stage(st.use)
+                    if opt not in {o.name for o in cls.options}:
+                        raise UsageError(f"stage '{sid}' has no option '{opt}' (options: "
+                                         f"{', '.join(o.name for o in cls.options) or 'none'})")
+                    st.opts[opt] = value
+                continue
+            stage_hits = [st for st in p.stages if st.id == key or st.use == key]
+            if stage_hits and value.lower() in ("off", "on", "false", "true", "0", "1"):
+                for st in stage_hits:
+                    st.enabled = value.lower() in ("on", "true", "1")
+                continue
+            hits = [st for st in p.stages if key in {o.name for o in get_stage(st.use).options}]
+            owners = {st.id for st in hits}
+            if not hits:
+                raise UsageError(f"pipeline '{p.name}': no stage has option or id '{key}'")
+            if len(owners) > 1:
+                raise UsageError(f"pipeline '{p.name}': option '{key}' is ambiguous "
+                                 f"({', '.join(sorted(owners))}); use stage.{key}=...")
+            for st in hits:
+                st.opts[key] = value
+        p.variant = label
+        p.build("interp" if "interp" in p.modes else p.modes[0])  # validate now
+        return p
+
+    def build(self, mode: str) -> list[tuple[StageSpec, Stage]]:
+        if mode not in self.modes:
+            raise UsageError(f"pipeline '{self.name}' does not support mode '{mode}' "
+                             f"(modes: {', '.join(self.modes)})")
+        out = []
+        for st in self.stages:
+            if not st.enabled or (st.modes and mode not in st.modes):
+                continue
+            cls = get_stage(st.use, f"{self.path}:{st.line}")
+            out.append((st, cls(where=f"{self.path}:{st.line}", **st.opts)))
+        return out
+
+
+def _stage_lines(text: str) -> list[int]:
+    return [i + 1 for i, ln in enumerate(text.splitlines()) if ln.strip().startswith("[[stage]]")]
+
+
+def _key_line(text: str, start: int, key: str) -> int:
+    lines = text.splitlines()
+    for i in range(start, len(lines)):
+        if i > start - 1 and lines[i].strip().startswith("[[") and i != start - 1:
+            break
+        if re.match(rf"\s*{re.escape(key)}\s*=", lines[i]):
+            return i + 1
+    return start
+
+
+def load_pipeline_file(path: str) -> Pipeline:
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    text = raw.decode("utf-8", "replace")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise UsageError(f"{path}: invalid TOML: {e}") from None
+    for k in data:
+        if k not in TOP_KEYS:
+            raise UsageError(f"{path}:{_key_line(text, 1, k)}: unknown key '{k}'")
+    name = data.get("name") or os.path.splitext(os.path.basename(path))[0]
+    modes = tuple(data.get("modes", ["interp"]))
+    lines = _stage_lines(text)
+    specs = []
+    for i, st in enumerate(data.get("stage", [])):
+        line = lines[i] if i < len(lines) else 0
+        if "use" not in st:
+            raise UsageError(f"{path}:{line}: stage without 'use'")
+        cls = get_stage(st["use"], f"{path}:{line}")
+        table = {o.name for o in cls.options}
+        opts = {}
+        for k, v in st.items():
+            if k in STAGE_KEYS:
+                continue
+            if k not in table:
+                raise UsageError(f"{path}:{_key_line(text, line, k)}: unknown option '{k}' for "
+                                 f"stage '{st['use']}' (options: {', '.join(sorted(table)) or 'none'})")
+            opts[k] = v
+        smodes = tuple(st.get("modes", ()))
+        for m in smodes:
+            if m not in modes:
+                raise UsageError(f"{path}:{line}: stage mode '{m}' not in pipeline modes {modes}")
+        specs.append(StageSpec(id=st.get("id", st["use"]), use=st["use"], opts=opts,
+                               modes=smodes, line=line))
+    p = Pipeline(name=name, description=data.get("description", ""), modes=modes,
+                 stages=specs, path=path, requires=tuple(data.get("requires",
+                                                                  ("color", "depth", "mv"))))
+    for m in modes:
+        p.build(m)  # option values are checked here
+    return p
+
+
+def available() -> dict[str, str]:
+    found = {}
+    for d in PIPELINE_DIRS:
+        if os.path.isdir(d):
+            for fn in sorted(os.listdir(d)):
+                if fn.endswith(".toml"):
+                    found.setdefault(fn[:-5], os.path.join(d, fn))
+    return found
+
+
+def load(name_or_variant: str) -> Pipeline:
+    """'mob-fgsr', a path to a .toml, or a variant 'mob-fgsr:motion=linear,gap_fill=off'."""
+    base, _, rest = name_or_variant.partition(":")
+    if base.endswith(".toml") and os.path.isfile(base):
+        p = load_pipeline_file(base)
+    else:
+        avail = available()
+        if base not in avail:
+            raise UsageError(f"unknown pipeline '{base}' (available: {', '.join(avail)})")
+        p = load_pipeline_file(avail[base])
+    if rest:
+        return p.with_overrides([s for s in rest.split(",") if s], label=name_or_variant)
+    return p
+
+
+# --------------------------------------------------------------------------- execution
+
+
+@dataclass
+class Timings:
+    """Per-stage milliseconds, one entry per generated frame; skips logged."""
+
+    stages: dict = field(default_factory=dict)
+    total: list = field(default_factory=list)
+    io_read: list = field(default_factory=list)
+    io_write: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)  # (frame label, stage id, reason)
+
+    def add(self, sid: str, ms: float) -> None:
+        self.stages.setdefault(sid, []).append(ms)
+
+    @staticmethod
+    def median(xs, warmup: int = 1) -> float:
+        import statistics
+
+        xs = list(xs)
+        if len(xs) > warmup + 1:
+            xs = xs[warmup:]
+        return float(statistics.median(xs)) if xs else 0.0
+
+    def summary(self) -> dict:
+        per = {sid: self.median(v) for sid, v in self.stages.items()}
+        saved = 0.0
+        for _, sid, _ in self.skipped:
+            saved += per.get(sid, 0.0)
+        return {"ms_per_frame": self.median(self.total), "stages": per,
+                "io_read_ms": self.median(self.io_read, 0), "io_write_ms": self.median(self.io_write, 0),
+                "skipped": len(self.skipped), "ms_saved_by_skipping": saved}
+
+
+def frame_facts(ctx: dict) -> dict:
+    """Cheap per-frame facts computed once; stages use them in needed()."""
+    import torch
+
+    mv1 = ctx.get("mv1")
+    any_motion = bool(mv1 is not None and torch.count_nonzero(mv1).item() > 0)
+    mv0 = ctx.get("mv0")
+    facts = {"any_motion": any_motion,
+             "has_history": ctx.get("color0") is not None,
+             "history_motion": bool(mv0 is not None and torch.count_nonzero(mv0).item() > 0)}
+    cam0, cam1 = ctx.get("camera0"), ctx.get("camera1")
+    if cam0 is not None and cam1 is not None:
+        import numpy as np
+
+        facts["camera_moved"] = not np.allclose(cam0.world_to_camera, cam1.world_to_camera)
+    return facts
+
+
+def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timings | None = None,
+               label: str = "", sync=None) -> dict:
+    """Run the built stages on one frame's context. Returns the context with outputs."""
+    facts = frame_facts(ctx)
+    ctx["facts"] = facts
+    t_all = time.perf_counter()
+    for spec, stage in stages:
+        t0 = time.perf_counter()
+        need, why = stage.needed(ctx, facts)
+        if need:
+            out = stage.run(ctx)
+        else:
+            out = stage.skip(ctx)
+            if timings is not None:
+                timings.skipped.append((label, spec.id, why))
+        if sync is not None:
+            sync()
+        ctx.update(out)
+        if timings is not None and need:
+            timings.add(spec.id, (time.perf_counter() - t0) * 1000.0)
+    if sync is not None:
+        sync()
+    if timings is not None:
+        timings.total.append((time.perf_counter() - t_all) * 1000.0)
+    missing = [k for k in FINAL_OUTPUTS if ctx.get(k) is None]
+    if missing:
+        raise UsageError(f"pipeline produced no {', '.join(missing)} (check its stages)")
+    return ctx
+
+
+def describe(p: Pipeline) -> dict:
+    out = {"name": p.name, "description": p.description, "modes": list(p.modes),
+           "file": p.path, "stages": []}
+    for st in p.stages:
+        cls = get_stage(st.use)
+        opts = {o.name: st.opts.get(o.name, o.default) for o in cls.options}
+        out["stages"].append({"id": st.id, "use": st.use, "modes": list(st.modes) or list(p.modes),
+                              "enabled": st.enabled, "options": opts})
+    return out

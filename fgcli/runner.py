@@ -1,0 +1,209 @@
+"""Walk a sequence and generate frames with a pipeline: interpolation and extrapolation.
+
+Keeps only the frames a window needs in memory, carries explicit per-sequence state
+(history), times every stage and the EXR I/O separately, writes every generated frame with
+its color, depth and MVs atomically, and records the resolved pipeline in fgen-run.json.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from fractions import Fraction
+
+from fgcli.errors import UsageError
+from fgcli.frame import Frame
+from fgcli.pipeline import Pipeline, Timings, describe, run_stages
+
+
+def parse_alphas(alpha: str | None, factor: int | None, mode: str) -> list[Fraction]:
+    if alpha:
+        out = []
+        for a in alpha.split(","):
+            try:
+                v = Fraction(a.strip()).limit_denominator(1024)
+            except ValueError:
+                raise UsageError(f"bad --alpha value '{a}'") from None
+            if mode == "interp" and not (0 < v < 1):
+                raise UsageError(f"interpolation alpha must be in (0, 1), got {a}")
+            if mode == "extrap" and not v > 0:
+                raise UsageError(f"extrapolation alpha must be > 0, got {a}")
+            out.append(v)
+        return sorted(set(out))
+    n = factor or 2
+    if n < 2:
+        raise UsageError("--factor must be >= 2")
+    return [Fraction(k, n) for k in range(1, n)]
+
+
+def timeline_scale(step: int, times: list[Fraction]) -> int:
+    """Smallest m such that rendered frames n*m and generated frames (a + t*step)*m are all
+    integers on one frame-number timeline."""
+    m = 1
+    for t in times:
+        m = math.lcm(m, (t * step).denominator)
+    return m
+
+
+def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
+    return {"color0": None if f0 is None else f0.color, "depth0": None if f0 is None else f0.depth,
+            "mv0": None if f0 is None else f0.mv, "camera0": None if f0 is None else f0.camera,
+            "color1": f1.color, "depth1": f1.depth, "mv1": f1.mv, "camera1": f1.camera,
+            "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height}
+
+
+def generated_frame(ctx: dict, number: int, time_: float, like: Frame) -> Frame:
+    return Frame(number=number, color=ctx["color"], depth=ctx["depth"], mv=ctx["mv"],
+                 header=dict(like.header), time=time_)
+
+
+@dataclass
+class RunState:
+    """Per-sequence state carried from frame to frame (history for recurrent methods)."""
+
+    history: list = field(default_factory=list)  # previous rendered frames, oldest first
+    store: dict = field(default_factory=dict)  # stage-owned recurrent state
+
+
+class FrameCache:
+    """Reads frames on demand and keeps at most `keep` in memory."""
+
+    def __init__(self, reader, timings: Timings, device: str = "cpu", keep: int = 3):
+        self.reader, self.timings, self.device, self.keep = reader, timings, device, keep
+        self.frames: dict[int, Frame] = {}
+
+    def get(self, n: int) -> Frame:
+        if n not in self.frames:
+            t0 = time.perf_counter()
+            f = self.reader.read(n)
+            self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
+            if self.device != "cpu":
+                f = f.to(self.device)
+            self.frames[n] = f
+            while len(self.frames) > self.keep:
+                self.frames.pop(min(self.frames))
+        return self.frames[n]
+
+
+def device_sync(device: str):
+    if device.startswith("cuda"):
+        import torch
+
+        return torch.cuda.synchronize
+    return None
+
+
+def check_device(device: str) -> str:
+    import torch
+
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise UsageError("--device cuda requested but no CUDA device is available")
+    if not (device == "cpu" or device.startswith("cuda")):
+        raise UsageError(f"unknown device '{device}' (cpu or cuda[:N])")
+    return device
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", disable=not enabled, file=sys.stderr,
+                leave=False)
+
+
+def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fraction],
+                 emit: str = "generated", device: str = "cpu", progress: bool = True,
+                 count: int = 1, out_layout: str = "fgen", half: bool = True,
+                 compression: str = "zip", command: str = "") -> dict:
+    """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
+    alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
+    OUT/fgen-run.json)."""
+    import torch
+
+    device = check_device(device)
+    stages = pipeline.build(mode)
+    numbers = reader.numbers
+    step = reader.step
+    if mode == "extrap":
+        times = sorted({a * k for a in times for k in range(1, count + 1)})
+        if len(numbers) > 1 and max(times) >= 1:
+            raise UsageError("extrapolated frames would reach the next rendered frame "
+                             "(alpha x count must be < 1)")
+    m = timeline_scale(step, times)
+    timings = Timings()
+    cache = FrameCache(reader, timings, device)
+    state = RunState()
+    sync = device_sync(device)
+    jobs = []  # (a_number or None, b_number, alpha, out_number, previous output time)
+    if mode == "interp":
+        if len(numbers) < 2:
+            raise UsageError("interpolation needs at least two rendered frames")
+        for a, b in zip(numbers, numbers[1:]):
+            for k, t in enumerate(times):
+                jobs.append((a, b, t, int((a + t * (b - a)) * m), times[k - 1] if k else 0))
+    else:
+        for i, b in enumerate(numbers):
+            a = numbers[i - 1] if i > 0 else None
+            for k, t in enumerate(times):
+                jobs.append((a, b, t, int((b + t * step) * m), times[k - 1] if k else 0))
+    copies = [(n, n * m) for n in numbers] if emit == "all" else []
+    pinfo = describe(pipeline)
+    attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
+                    "fgen:command": command, "fgen:pipeline_json": json.dumps(pinfo)}
+    written, skipped_existing = 0, 0
+    bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)
+    with torch.inference_mode():
+        for n, on in copies:
+            path = out.path_for(on)
+            if out.should_write(path):
+                f = cache.get(n)
+                if f.mv is not None and n != numbers[0]:
+                    # in the merged sequence the previous output frame is the last generated
+                    # one: rescale the rendered vectors (linear motion) so they point there
+                    f = f.replace(mv=f.mv * (1.0 - float(max(times))))
+                t0 = time.perf_counter()
+                out.write(path, f.replace(number=on), layout=out_layout, half=half,
+                          compression=compression,
+                          attributes={**attrs_common, "fgen:source_frames": str(n),
+                                      "fgen:rendered": 1})
+                timings.io_write.append((time.perf_counter() - t0) * 1000.0)
+                written += 1
+            else:
+                skipped_existing += 1
+            bar.update(1)
+        for a, b, t, on, prev_t in jobs:
+            path = out.path_for(on)
+            if not out.should_write(path):
+                skipped_existing += 1
+                bar.update(1)
+                continue
+            f1 = cache.get(b)
+            f0 = cache.get(a) if a is not None else None
+            ctx = make_ctx(f0, f1, float(t), mode)
+            ctx["state"] = state
+            ctx["prev_time"] = float(prev_t)
+            ctx = run_stages(stages, ctx, timings, label=str(on), sync=sync)
+            gen = generated_frame(ctx, on, (float(b) + float(t) * (step if mode == "extrap" else (b - a))) * m, f1)
+            t0 = time.perf_counter()
+            src = f"{a},{b}" if a is not None else f"{b}"
+            out.write(path, gen.to("cpu"), layout=out_layout, half=half, compression=compression,
+                      attributes={**attrs_common, "fgen:alpha": float(t),
+                                  "fgen:source_frames": src})
+            timings.io_write.append((time.perf_counter() - t0) * 1000.0)
+            written += 1
+            bar.update(1)
+    bar.close()
+    reader.warn_nonfinite()
+    summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
+               "input": reader.folder, "input_frames": numbers, "timeline_scale": m,
+               "written": written, "skipped_existing": skipped_existing,
+               "timings": timings.summary(),
+               "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
+               "command": command, "device": device}
+    tmp = os.path.join(out.path, ".fgen-tmp-run.json")
+    with open(tmp, "w") as fh:
+        json.dump(summary, fh, indent=1)
+    os.replace(tmp, os.path.join(out.path, "fgen-run.json"))
+    return summary

@@ -1,0 +1,1 @@
+"""Stage classes (thin wrappers around fgcli.ops) and the registry (base.REGISTRY)."""
