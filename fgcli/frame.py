@@ -11,6 +11,9 @@ y down, origin top-left.
   trusted (e.g. Blender writes 0 for sky pixels even when the camera moves).
 - normal: (3, H, W) world-space unit normals or None; albedo (3, H, W); roughness (1, H, W).
 - camera: Camera or None (world_to_camera and projection, OpenGL conventions).
+- mv_fwd: (2, H, W) or None; forward vectors, pixels, from frame t to frame t+1:
+  next_xy = xy + mv_fwd[:, y, x]. Only some layouts carry them (Blender, Nuke).
+- header_types: OpenImageIO type names of the `header` attributes (so writers keep them).
 """
 from __future__ import annotations
 
@@ -56,6 +59,8 @@ class Frame:
     header: dict = field(default_factory=dict)
     source: str | None = None
     time: float | None = None  # number + alpha for generated frames; defaults to number
+    mv_fwd: Any = None  # (2, H, W) pixels toward frame t+1, y down; optional
+    header_types: dict = field(default_factory=dict)  # header attribute -> OIIO type name
 
     @property
     def height(self) -> int:
@@ -74,7 +79,7 @@ class Frame:
 
     def to(self, device) -> "Frame":
         kw = {}
-        for name in list(TENSOR_FIELDS) + ["mv_valid"]:
+        for name in list(TENSOR_FIELDS) + ["mv_valid", "mv_fwd"]:
             v = getattr(self, name)
             if v is not None:
                 kw[name] = v.to(device)

@@ -1,4 +1,4 @@
-"""Frame-level read/write in the `fgen` layout, and the sequence reader every command uses.
+"""Frame-level read/write (any layout, `fgen` by default) and sidecar cameras.
 
 Other layouts (blender, nuke, multi-view, user TOML) plug in through fgcli.io.layouts.
 """
@@ -10,9 +10,9 @@ import os
 import numpy as np
 
 from fgcli import __version__
-from fgcli.errors import InputError
+from fgcli.errors import InputError, OutputError
 from fgcli.frame import Camera, Frame
-from fgcli.io import exr
+from fgcli.io import cameras, exr
 
 # canonical fgen layout channel names
 FGEN_CHANNELS = {
@@ -29,38 +29,39 @@ FLOAT_FIELDS = {"depth", "mv"}
 
 
 def frame_to_fgen_channels(frame: Frame, half: bool = True) -> tuple[dict, dict]:
-    chans: dict[str, np.ndarray] = {}
-    types: dict[str, str] = {}
-    for fld, names in FGEN_CHANNELS.items():
-        t = getattr(frame, fld)
-        if t is None:
-            continue
-        a = t.detach().cpu().numpy() if hasattr(t, "detach") else np.asarray(t)
-        for i, n in enumerate(names):
-            chans[n] = a[i]
-            types[n] = "float" if (not half or fld in FLOAT_FIELDS) else "half"
-    return chans, types
+    from fgcli.io import layouts
+
+    return layouts.get("fgen").encode(frame, half)
 
 
 def fgen_attributes(frame: Frame, extra: dict | None = None) -> dict:
-    attrs = {}
-    for k, v in (frame.header or {}).items():
-        attrs[k] = v
-    if frame.camera is not None:
-        attrs["fgen:world_to_camera"] = json.dumps(frame.camera.to_json()["world_to_camera"])
-        attrs["fgen:projection"] = json.dumps(frame.camera.to_json()["projection"])
+    """The header of an output frame: the source frame's metadata (minus its camera),
+    the frame's camera (fgen JSON + OpenEXR worldToCamera/worldToNDC), fgen:version and
+    `extra` (fgen:* provenance, see fgcli.io.output.fgen_attributes)."""
+    attrs = {k: v for k, v in (frame.header or {}).items()
+             if k not in cameras.CAMERA_ATTRIBUTES}
+    attrs.update(cameras.header_attributes(frame.camera))
     attrs["fgen:version"] = __version__
     attrs.update(extra or {})
     return attrs
 
 
-def write_frame(path: str, frame: Frame, layout: str = "fgen", half: bool = True,
+def write_frame(path: str, frame: Frame, layout="fgen", half: bool = True,
                 compression: str = "zip", attributes: dict | None = None) -> None:
-    """Write a Frame atomically. `attributes` are added as header metadata (fgen:* keys)."""
+    """Write a Frame atomically in `layout` (a name, a .toml path or a layout object).
+    `attributes` are added to the header (fgen:* keys)."""
     from fgcli.io import layouts
 
     chans, types = layouts.encode(frame, layout, half=half)
-    exr.write_exr(path, chans, types, fgen_attributes(frame, attributes), compression)
+    if not chans:
+        raise OutputError("frame has nothing this layout can write", file=path,
+                          frame=frame.number)
+    types_attr = dict(getattr(frame, "header_types", None) or {})
+    types_attr.update(cameras.CAMERA_ATTRIBUTE_TYPES)
+    for k in (attributes or {}):
+        types_attr.pop(k, None)
+    exr.write_exr(path, chans, types, fgen_attributes(frame, attributes), compression,
+                  attribute_types=types_attr)
 
 
 def read_frame(path: str, number: int, layout=None, view: str | None = None,
@@ -74,7 +75,11 @@ def read_frame(path: str, number: int, layout=None, view: str | None = None,
 
 
 def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
-    p = os.path.join(folder, "cameras.json")
+    """Cameras from `cameras.json` in `folder` ({} when there is none). Format:
+    {"frames": [{"frame": 12, "world_to_camera": [[4x4]], "projection": [[4x4]]}, ...]},
+    row-major, column vectors, OpenGL camera (-Z forward, +Y up), NDC y up; other keys
+    are ignored."""
+    p = os.path.join(str(folder), "cameras.json")
     if not os.path.isfile(p):
         return {}
     try:
@@ -82,8 +87,13 @@ def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
             data = json.load(fh)
         cams = {}
         for e in data["frames"]:
-            cams[int(e["frame"])] = Camera(np.asarray(e["world_to_camera"], dtype=np.float64),
-                                           np.asarray(e["projection"], dtype=np.float64))
+            w2c = np.asarray(e["world_to_camera"], dtype=np.float64)
+            proj = np.asarray(e["projection"], dtype=np.float64)
+            if w2c.shape != (4, 4) or proj.shape != (4, 4):
+                raise ValueError(f"frame {e['frame']}: matrices must be 4x4")
+            if not (np.isfinite(w2c).all() and np.isfinite(proj).all()):
+                raise ValueError(f"frame {e['frame']}: non-finite matrix values")
+            cams[int(e["frame"])] = Camera(w2c, proj)
         return cams
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"bad cameras.json: {e}", file=p) from None

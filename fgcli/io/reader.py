@@ -1,31 +1,62 @@
-"""SequenceReader: one object a command uses to walk a sequence in the internal convention."""
+"""SequenceReader: one object a command uses to walk a sequence in the internal convention.
+
+It discovers the sequence, resolves the layout and view from the first frame, checks every
+frame against the first one's size, reads only the fields asked for, attaches cameras (header
+or sidecar `cameras.json`), derives backward vectors when a file carries only forward ones
+(Nuke renders), and counts NaN/Inf values for one warning per sequence.
+"""
 from __future__ import annotations
 
 import sys
 
+import numpy as np
+
 from fgcli.errors import InputError
 from fgcli.frame import Frame
-from fgcli.io import exr, layouts, sequence
+from fgcli.io import cameras, exr, layouts, sequence
+from fgcli.io.derive import backward_from_forward
 from fgcli.io.frames import load_sidecar_cameras
 
 
 class SequenceReader:
+    """Walk a sequence folder.
+
+    fields: Frame fields needed (e.g. {"color", "depth", "mv"}); None reads all present.
+    optional: fields read when present but not required (alpha is always optional).
+    Attributes: numbers, layout, view, views, width, height, step, info (LayoutInfo of the
+    first frame), notes (facts worth telling the user), camera_source.
+    """
+
     def __init__(self, folder: str, pattern: str | None = None, frames: str | None = None,
                  allow_gaps: bool = False, layout=None, view: str | None = None,
-                 fields: set[str] | None = None):
-        self.seq = sequence.discover(folder, pattern, frames, allow_gaps)
-        self.folder = folder
+                 fields: set[str] | None = None, optional: set[str] | None = None):
+        self.folder = str(folder)
+        self.seq = sequence.discover(self.folder, pattern, frames, allow_gaps)
+        # every frame on disk (for the previous frame of a forward-vector derivation)
+        self.all_files = (sequence.discover(self.folder, pattern, None, True).files
+                          if frames else dict(self.seq.files))
+        self.disk_step = sequence.Sequence(self.folder, "", 0, self.all_files).step
         self.numbers = self.seq.frames
         first = self.seq.files[self.numbers[0]]
         self.header0 = exr.read_header(first)
         self.layout = layouts.resolve(layout, self.header0)
-        self.view = view
-        self.fields = fields
+        self.info = self.layout.describe(self.header0, view)
+        self.view = self.info.view
+        self.views = self.info.views
+        self.fields = None if fields is None else set(fields)
+        self.optional = set(optional or ())
         self.width, self.height = self.header0.width, self.header0.height
-        self.sidecar = load_sidecar_cameras(folder)
+        self.sidecar = load_sidecar_cameras(self.folder)
         self.nonfinite: dict = {}
         self._warned = False
+        self._derive = (self.info.mv_source == "forward"
+                        and (self.fields is None or "mv" in self.fields))
+        self._prev_fwd = None  # (number, fwd (2,H,W), depth (1,H,W) or None, valid or None)
+        self.notes: list[str] = list(self.info.notes)
+        if self.info.mv_source == "forward" and not self._derive:
+            self.notes = [n for n in self.notes if not n.startswith("backward vectors derived")]
 
+    # -- facts ----------------------------------------------------------------------------
     @property
     def step(self) -> int:
         return self.seq.step
@@ -33,25 +64,84 @@ class SequenceReader:
     def path(self, n: int) -> str:
         return self.seq.files[n]
 
-    def read(self, n: int) -> Frame:
-        if n not in self.seq.files:
-            raise InputError("frame not in sequence", file=self.folder, frame=n)
-        path = self.seq.files[n]
-        header = exr.read_header(path)
-        if (header.width, header.height) != (self.width, self.height):
-            raise InputError(f"frame size {header.width}x{header.height} differs from the "
-                             f"sequence's {self.width}x{self.height}", file=path, frame=n)
-        f = self.layout.read(header, n, view=self.view, fields=self.fields,
-                             nonfinite=self.nonfinite)
-        if f.camera is None and n in self.sidecar:
-            f.camera = self.sidecar[n]
-        return f
+    @property
+    def camera_source(self) -> str | None:
+        """'fgen header', 'worldToCamera/worldToNDC', 'cameras.json' or None."""
+        part = self.info.part_of("color") if "color" in self.info.names else 0
+        _, src = cameras.from_header_attributes(self.header0.parts[part].attributes)
+        if src:
+            return src
+        return "cameras.json" if self.sidecar else None
 
     @property
     def has_camera(self) -> bool:
-        if self.sidecar:
-            return True
-        return layouts.camera_from_header(self.header0) is not None
+        return self.camera_source is not None
+
+    @property
+    def mv_derived(self) -> bool:
+        """True when backward vectors are derived from forward vectors."""
+        return self.info.mv_source == "forward"
+
+    def check_sizes(self) -> None:
+        """Read every frame's header; InputError naming the first frame whose size differs."""
+        for n in self.numbers:
+            self._header(n)
+
+    # -- reading --------------------------------------------------------------------------
+    def _header(self, n: int, path: str | None = None) -> exr.Header:
+        path = path or self.seq.files[n]
+        header = exr.read_header(path)
+        if (header.width, header.height) != (self.width, self.height):
+            raise InputError(f"frame size {header.width}x{header.height} differs from the "
+                             f"sequence's {self.width}x{self.height} (frame "
+                             f"{self.numbers[0]})", file=path, frame=n)
+        return header
+
+    def read_raw(self, n: int) -> layouts.RawFrame:
+        if n not in self.seq.files:
+            raise InputError("frame not in sequence", file=self.folder, frame=n)
+        header = self._header(n)
+        optional = self.optional | ({"depth"} if self._derive else set())
+        raw = self.layout.read_raw(header, n, view=self.view, fields=self.fields,
+                                   nonfinite=self.nonfinite, optional=optional)
+        if self._derive:
+            self._derive_mv(raw)
+            if self.fields is not None and "depth" not in self.fields | self.optional:
+                raw.helpers.add("depth")
+        if raw.camera is None and n in self.sidecar:
+            raw.camera = self.sidecar[n]
+        return raw
+
+    def read(self, n: int) -> Frame:
+        return self.read_raw(n).to_frame()
+
+    def _derive_mv(self, raw: layouts.RawFrame) -> None:
+        n = raw.number
+        h, w = self.height, self.width
+        fwd_here = raw.arrays.get("mv_fwd")
+        prev = n - self.disk_step
+        src = None
+        if self._prev_fwd is not None and self._prev_fwd[0] == prev:
+            src = self._prev_fwd[1:]
+        elif prev in self.all_files:
+            header = self._header(prev, self.all_files[prev])
+            p = self.layout.read_raw(header, prev, view=self.view,
+                                     fields={"mv_fwd", "depth"}, optional={"depth"})
+            if "mv_fwd" in p.arrays:
+                src = (p.arrays["mv_fwd"], p.arrays.get("depth"), p.valid.get("mv_fwd"))
+        if src is not None:
+            mv, valid = backward_from_forward(*src)
+        else:  # first frame on disk: nothing to derive from
+            mv = np.zeros((2, h, w), np.float32)
+            valid = np.zeros((1, h, w), bool)
+        raw.arrays["mv"] = mv
+        if not valid.all():
+            raw.valid["mv"] = valid
+        if fwd_here is not None:
+            self._prev_fwd = (n, fwd_here, raw.arrays.get("depth"), raw.valid.get("mv_fwd"))
+        if self.fields is not None and "mv_fwd" not in self.fields and \
+                "mv_fwd" not in self.optional:
+            raw.helpers.add("mv_fwd")
 
     def warn_nonfinite(self) -> None:
         """One warning per sequence naming the frames where NaN/Inf were replaced."""
@@ -60,5 +150,6 @@ class SequenceReader:
             for fld, items in self.nonfinite.items():
                 frames = sorted({n for n, _ in items})
                 count = sum(c for _, c in items)
-                print(f"warning: {self.folder}: {count} NaN/Inf values in {fld} replaced with "
-                      f"finite values, frames {', '.join(map(str, frames))}", file=sys.stderr)
+                what = "+inf (sky)" if fld == "depth" else "0"
+                print(f"warning: {self.folder}: {count} NaN/Inf values in {fld} replaced "
+                      f"with {what}, frames {sequence._fmt(frames)}", file=sys.stderr)

@@ -10,8 +10,42 @@ from functools import reduce
 
 from fgcli.errors import InputError, UsageError
 
-# name.1001.exr, name_0001.exr, frame_0001.exr, 0001.exr, name-0001.exr
-_NAME_RE = re.compile(r"^(?P<prefix>.*?)(?P<num>-?\d+)\.(?P<ext>exr)$", re.IGNORECASE)
+# name.1001.exr, name_0001.exr, frame_0001.exr, 0001.exr, name-0001.exr; a minus sign
+# counts only right after '.' or '_' or at the start (name.-001.exr = frame -1)
+_NAME_RE = re.compile(r"^(?P<prefix>.*?)(?P<num>\d+)\.(?P<ext>exr)$", re.IGNORECASE)
+
+
+def parse_name(fn: str) -> tuple[str, str, int] | None:
+    """(prefix, digits, frame number) of a frame file name, or None."""
+    m = _NAME_RE.match(fn)
+    if not m:
+        return None
+    prefix, digits = m.group("prefix"), m.group("num")
+    n = int(digits)
+    if prefix.endswith("-") and (len(prefix) == 1 or prefix[-2] in "._"):
+        prefix, n = prefix[:-1], -n
+    return prefix, digits, n
+
+
+def _group(entries: list[tuple[str, str, int, str]]) -> dict[tuple[str, int], dict[int, str]]:
+    """Group (prefix, digits, number, path) into sequences keyed by (prefix, padding).
+    Zero-padded names fix a padding; unpadded numbers longer than a padding belong to it
+    (frame 10000 of a 4-digit sequence); a folder of unpadded names is one sequence."""
+    by_prefix: dict[str, list] = {}
+    for e in entries:
+        by_prefix.setdefault(e[0], []).append(e)
+    groups: dict[tuple[str, int], dict[int, str]] = {}
+    for prefix, es in by_prefix.items():
+        pads = sorted({len(d) for _, d, _, _ in es if len(d) > 1 and d.startswith("0")})
+        for _, d, n, path in es:
+            if len(d) > 1 and d.startswith("0"):
+                pad = len(d)
+            else:
+                fits = [p for p in pads if p <= len(d)]
+                pad = fits[-1] if fits else min(len(x) for _, x, _, _ in es
+                                                if not (len(x) > 1 and x.startswith("0")))
+            groups.setdefault((prefix, pad), {})[n] = path
+    return groups
 
 
 @dataclass
@@ -81,16 +115,14 @@ def discover(folder: str, pattern: str | None = None, frames: str | None = None,
     folder = str(folder)
     if not os.path.isdir(folder):
         raise InputError("not a folder", file=folder)
-    groups: dict[tuple[str, int], dict[int, str]] = {}
+    entries = []
     for fn in sorted(os.listdir(folder)):
-        if fn.startswith(".fgen-tmp-"):
+        if fn.startswith(".fgen-tmp-") or not os.path.isfile(os.path.join(folder, fn)):
             continue
-        m = _NAME_RE.match(fn)
-        if not m:
-            continue
-        digits = m.group("num").lstrip("-")
-        key = (m.group("prefix"), len(digits))
-        groups.setdefault(key, {})[int(m.group("num"))] = os.path.join(folder, fn)
+        parsed = parse_name(fn)
+        if parsed:
+            entries.append((*parsed, os.path.join(folder, fn)))
+    groups = _group(entries)
     if not groups:
         raise InputError("no EXR frames found (expected names like name.1001.exr or "
                          "frame_0001.exr)", file=folder)

@@ -1,0 +1,98 @@
+"""Per-stage and per-frame cost of every pipeline at 1920x1080 on this machine.
+
+    python benchmarks/stages.py [--size 1920x1080] [--repeat 7] [--pipelines mob-fgsr,...]
+
+Frames come from the bundled `blade` scene rendered at the benchmark size (fast movers,
+disocclusions: the expensive case). Prints median ms per stage and per generated frame,
+EXR read/write times separately, and every figure as a ratio to a reference measured in the
+same run (a plain copy of one frame's color+depth+mv tensors), so figures compare across
+machines. Compute excludes I/O. Target: mob-fgsr interpolation < 400 ms per 1080p frame.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def median_ms(fn, repeat):
+    fn()  # warm-up
+    xs = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        xs.append((time.perf_counter() - t0) * 1000)
+    return statistics.median(xs)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--pipelines", default="all")
+    ap.add_argument("--scene", default=os.path.join(ROOT, "sample_data", "scenes", "blade.toml"))
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
+    args = ap.parse_args()
+    import torch
+
+    from fgcli import pipeline as pl
+    from fgcli.io.frames import read_frame, write_frame
+    from fgcli.pipeline import Timings, run_stages
+    from fgcli.runner import make_ctx
+    from fgcli.synth import load_scene, render
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    W, H = (int(v) for v in args.size.lower().split("x"))
+    scene = load_scene(args.scene, size=(W, H))
+    t0 = time.perf_counter()
+    f0 = render(scene, 3.0, 2.0, spp=1)
+    f1 = render(scene, 4.0, 3.0, spp=1)
+    render_ms = (time.perf_counter() - t0) * 500
+    f0, f1 = (f.replace(normal=None, albedo=None, roughness=None, alpha=None) for f in (f0, f1))
+    print(f"# {W}x{H}, torch {torch.__version__}, {torch.get_num_threads()} threads; "
+          f"frames from {os.path.basename(args.scene)} (render {render_ms:.0f} ms/frame, not counted)")
+
+    ref = median_ms(lambda: (f1.color.clone(), f1.depth.clone(), f1.mv.clone()), args.repeat)
+    print(f"reference: copy one frame's color+depth+mv tensors = {ref:.2f} ms\n")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "f.0001.exr")
+        w_ms = median_ms(lambda: write_frame(path, f1), max(3, args.repeat // 2))
+        r_ms = median_ms(lambda: read_frame(path, 1, fields={"color", "depth", "mv"}),
+                         max(3, args.repeat // 2))
+        size_mb = os.path.getsize(path) / 1e6
+    print(f"EXR write (fgen layout, half color, float depth/mv, zip): {w_ms:.1f} ms "
+          f"({w_ms / ref:.0f}x ref), {size_mb:.1f} MB")
+    print(f"EXR read  (color+depth+mv):                               {r_ms:.1f} ms "
+          f"({r_ms / ref:.0f}x ref)\n")
+
+    names = list(pl.available()) if args.pipelines == "all" else args.pipelines.split(",")
+    print("| pipeline | mode | ms/frame (compute) | x ref | stages (median ms) |")
+    print("|---|---|---|---|---|")
+    with torch.inference_mode():
+        for name in names:
+            p = pl.load(name)
+            for mode in p.modes:
+                stages = p.build(mode)
+                tm = Timings()
+                for _ in range(args.repeat + 1):
+                    ctx = make_ctx(f0, f1, 0.5, mode)
+                    ctx["prev_time"] = 0.0
+                    ctx["state"] = None
+                    run_stages(stages, ctx, tm)
+                s = tm.summary()
+                st = ", ".join(f"{k} {v:.1f}" for k, v in s["stages"].items())
+                print(f"| {p.label} | {mode} | {s['ms_per_frame']:.1f} | "
+                      f"{s['ms_per_frame'] / ref:.1f} | {st} |")
+                sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()

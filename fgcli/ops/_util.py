@@ -1,0 +1,164 @@
+"""Shared helpers for the pure tensor ops: input checks, pixel grids, sanitising, batching.
+
+Conventions (DESIGN.md section 2): torch float32, channel-first. A per-frame tensor is
+(C, H, W); a batch is (B, C, H, W). Pixel centres sit at integer + 0.5 in *pixel
+coordinates*; inside the ops we work in *index coordinates* (pixel centre of column x is
+x), which differ by a constant 0.5 and so leave every displacement unchanged.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import math
+
+import torch
+
+# Finite stand-in for +-inf in filtered (interpolating) samplers: large enough to stay
+# "infinitely far" for depth tests, small enough that a convex combination of 4 or 16
+# such values cannot overflow float32.
+BIG = 1.0e30
+# Motion vectors are clamped to +-MV_MAX pixels: "off-screen" for any real image, and
+# far from float32 overflow when scaled by the motion-model coefficients.
+MV_MAX = 1.0e6
+# float32 bit pattern of +inf: the largest key a non-negative depth can produce.
+INF_BITS = 0x7F800000
+
+
+def check_tensor(x, name: str, channels: int | None = None, *, allow_batch: bool = True,
+                 dtype_kind: str = "float") -> torch.Tensor:
+    """Validate an image-like tensor and return it (float32 or bool, unchanged otherwise).
+
+    Accepts (C, H, W) and, when allow_batch, (B, C, H, W). Raises TypeError for a
+    non-tensor and ValueError (naming the argument and the shape) for a wrong rank,
+    channel count or an empty spatial size.
+    """
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor, got {type(x).__name__}")
+    ranks = (3, 4) if allow_batch else (3,)
+    if x.dim() not in ranks:
+        want = "(C, H, W) or (B, C, H, W)" if allow_batch else "(C, H, W)"
+        raise ValueError(f"{name}: expected a {want} tensor, got shape {tuple(x.shape)}")
+    if channels is not None and x.shape[-3] != channels:
+        raise ValueError(f"{name}: expected {channels} channel(s) in dim -3, "
+                         f"got shape {tuple(x.shape)}")
+    if x.shape[-1] == 0 or x.shape[-2] == 0 or (x.dim() == 4 and x.shape[0] == 0):
+        raise ValueError(f"{name}: empty tensor, shape {tuple(x.shape)}")
+    if dtype_kind == "float":
+        if x.dtype == torch.bool or not (x.is_floating_point() or x.dtype in
+                                         (torch.int32, torch.int64, torch.uint8, torch.int16)):
+            raise TypeError(f"{name}: expected a float tensor, got {x.dtype}")
+        if x.dtype != torch.float32:
+            x = x.float()
+    elif dtype_kind == "bool":
+        if x.dtype != torch.bool:
+            raise TypeError(f"{name}: expected a bool tensor, got {x.dtype}")
+    return x
+
+
+def check_same(ref: torch.Tensor, ref_name: str, *others) -> None:
+    """Check that (tensor, name) pairs share rank, batch size and (H, W) with ref."""
+    for t, name in others:
+        if t is None:
+            continue
+        if t.dim() != ref.dim():
+            raise ValueError(f"{name}: rank {t.dim()} (shape {tuple(t.shape)}) does not match "
+                             f"{ref_name} shape {tuple(ref.shape)}; batch all inputs or none")
+        if t.shape[-2:] != ref.shape[-2:]:
+            raise ValueError(f"{name}: size {tuple(t.shape[-2:])} does not match {ref_name} "
+                             f"size {tuple(ref.shape[-2:])}")
+        if t.dim() == 4 and t.shape[0] != ref.shape[0]:
+            raise ValueError(f"{name}: batch {t.shape[0]} does not match {ref_name} "
+                             f"batch {ref.shape[0]}")
+
+
+def check_alpha(alpha, name: str = "alpha", lo: float = 0.0, hi: float | None = 1.0) -> float:
+    try:
+        a = float(alpha)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name}: expected a number, got {type(alpha).__name__}") from None
+    if not math.isfinite(a) or a < lo or (hi is not None and a > hi):
+        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ValueError(f"{name}: must be finite and in {rng}, got {alpha!r}")
+    return a
+
+
+def check_choice(value, name: str, choices) -> str:
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {sorted(choices)}, got {value!r}")
+    return value
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_cached(h: int, w: int, device: str):
+    gx = torch.arange(w, dtype=torch.float32, device=device).expand(h, w)
+    gy = torch.arange(h, dtype=torch.float32, device=device)[:, None].expand(h, w)
+    return gx, gy
+
+
+def grid(h: int, w: int, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Index-coordinate grids (H, W) (expanded views, do not write into them)."""
+    return _grid_cached(int(h), int(w), str(device))
+
+
+def sanitize_values(x: torch.Tensor, big: float = BIG) -> torch.Tensor:
+    """NaN -> 0, +-inf -> +-big; returns x itself when it is already finite (no copy).
+
+    The finiteness test sums the tensor (cheap) instead of isfinite().all() (slow on CPU):
+    a finite sum proves every element finite; otherwise we sanitise (conservatively).
+    """
+    if x.numel() == 0 or math.isfinite(float(x.sum())):
+        return x
+    return torch.nan_to_num(x, nan=0.0, posinf=big, neginf=-big)
+
+
+def sanitize_mv(mv: torch.Tensor) -> torch.Tensor:
+    """Motion vectors with NaN -> 0 and components clamped to +-MV_MAX (no copy if clean)."""
+    if mv.numel() == 0:
+        return mv
+    hi, lo = float(mv.amax()), float(mv.amin())  # amax/amin propagate NaN
+    if hi <= MV_MAX and lo >= -MV_MAX:
+        return mv
+    return torch.nan_to_num(mv, nan=0.0, posinf=MV_MAX, neginf=-MV_MAX).clamp_(-MV_MAX, MV_MAX)
+
+
+def sanitize_depth(depth: torch.Tensor) -> torch.Tensor:
+    """Depth with NaN -> +inf and negatives (incl. -0.0, -inf) -> +0 (no copy if clean)."""
+    if depth.numel() == 0:
+        return depth
+    if float(depth.amin()) > 0.0:  # False for NaN (amin propagates NaN) and for any <= 0
+        return depth
+    d = torch.nan_to_num(depth, nan=float("inf"), posinf=float("inf"), neginf=0.0)
+    return d.clamp_(min=0.0).abs_()  # abs_ turns -0.0 into +0.0
+
+
+def per_frame(fn, batched: torch.Tensor, *args):
+    """Apply fn(frame_i, *args_i) to each frame of a (B, ...) batch and stack the outputs.
+
+    args may hold (B, ...) tensors (sliced per frame) or anything else (passed through).
+    fn may return a tensor or a tuple of tensors.
+    """
+    outs = []
+    for i in range(batched.shape[0]):
+        a_i = [a[i] if isinstance(a, torch.Tensor) and a.dim() == 4 else a for a in args]
+        outs.append(fn(batched[i], *a_i))
+    if isinstance(outs[0], tuple):
+        return tuple(torch.stack([o[k] for o in outs]) for k in range(len(outs[0])))
+    return torch.stack(outs)
+
+
+def tune_allocator(mmap_threshold: int = 32 << 20, trim_threshold: int = 1 << 30) -> bool:
+    """Make glibc keep freed frame-sized buffers instead of returning them to the OS.
+
+    Every op allocates a few 8-48 MB tensors per 1080p frame; by default glibc serves each
+    from fresh mmap pages and the page faults cost more than the arithmetic (measured 3-10x
+    on the 2-core box). Process-wide; call once at CLI start-up. Returns True on success
+    (False off glibc). Safe to call repeatedly.
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    ok = libc.mallopt(-3, int(mmap_threshold)) == 1  # M_MMAP_THRESHOLD
+    ok &= libc.mallopt(-1, int(trim_threshold)) == 1  # M_TRIM_THRESHOLD
+    ok &= libc.mallopt(-2, 64 << 20) == 1  # M_TOP_PAD
+    return bool(ok)

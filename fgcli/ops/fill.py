@@ -1,0 +1,248 @@
+"""Mob-FGSR refinement of splatted motion ("gap fill") and extrapolation hole filling."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from fgcli.ops._util import (INF_BITS, check_alpha, check_choice, check_same, check_tensor,
+                             sanitize_depth, sanitize_mv)
+from fgcli.ops.splat import SplatResult
+
+# 3x3 neighbours in row-major order, centre excluded: indices 0..7 = shader 0,1,2,3,5,6,7,8
+_NEIGH = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+# the four 2x2 blocks that contain the centre, as neighbour indices (plus the centre)
+_BLOCKS = [(0, 1, 3), (1, 2, 4), (3, 5, 6), (4, 6, 7)]
+
+
+def _check_result(result):
+    if not isinstance(result, SplatResult):
+        raise TypeError(f"result: expected a SplatResult, got {type(result).__name__}")
+
+
+def _minpool3(d):
+    """3x3 minimum of (H, W) with out-of-image neighbours ignored."""
+    h, w = d.shape
+    dp = F.pad(d[None, None], (1, 1, 1, 1), value=float("inf"))[0, 0]
+    out = d.clone()
+    for dy, dx in _NEIGH:
+        torch.minimum(out, dp[1 + dy:1 + dy + h, 1 + dx:1 + dx + w], out=out)
+    return out
+
+
+def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
+    h, w = res.depth.shape[-2:]
+    n = h * w
+    dev = res.depth.device
+    d = sanitize_depth(res.depth)[0]
+    valid = res.valid[0]
+    hole = ~valid
+    d = d.masked_fill(hole, float("inf"))
+    to1 = res.to1.clone()
+    to0 = res.to0.clone()
+    depth = d.clone()[None]
+    source = res.source.clone()
+    filled = torch.zeros((1, h, w), dtype=torch.bool, device=dev)
+    # empty pixels, and pixels with a valid neighbour nearer by more than the threshold
+    susp = hole | (_minpool3(d) < d * (1.0 - thr))
+    idx = susp.view(-1).nonzero().squeeze(1)
+    if idx.numel():
+        wp = w + 2
+        dbits = d.contiguous().view(torch.int32).clamp(0, INF_BITS)
+        # non-candidates read as a key above +inf so argmin never picks them
+        dpad = F.pad(dbits[None, None], (1, 1, 1, 1), value=INF_BITS)[0, 0].reshape(-1)
+        vpad = F.pad(valid[None, None].to(torch.uint8), (1, 1, 1, 1))[0, 0].reshape(-1).bool()
+        offp = torch.tensor([dy * wp + dx for dy, dx in _NEIGH], device=dev)
+        offu = torch.tensor([dy * w + dx for dy, dx in _NEIGH], device=dev)
+        y = idx // w
+        x = idx - y * w
+        pc = (y + 1) * wp + (x + 1)
+        nb = pc[:, None] + offp[None, :]
+        dn = dpad[nb]  # (M, 8) int32 depth bits
+        vn = vpad[nb]
+        dc = d.view(-1)[idx]
+        hc = hole.view(-1)[idx]
+        limit = dc * (1.0 - thr)
+        dnf = dn.view(torch.float32)
+        cand = vn & ((dnf < limit[:, None]) | hc[:, None])
+        nc = ~cand
+        keep = torch.zeros_like(hc)
+        for i, j, k in _BLOCKS:
+            keep |= nc[:, i] & nc[:, j] & nc[:, k]
+        sel = ~keep
+        if bool(sel.any()):
+            tgt = idx[sel]
+            c_sel = cand[sel]
+            key = dn[sel].masked_fill(~c_sel, 0x7FFFFFFF)
+            k = key.argmin(dim=1)  # nearest candidate; ties -> first in row-major order
+            srcpix = tgt + offu[k]
+            t1 = res.to1.reshape(2, -1)
+            t0 = res.to0.reshape(2, -1)
+            if fill == "nearest":
+                to1.view(2, -1)[:, tgt] = t1[:, srcpix]
+                to0.view(2, -1)[:, tgt] = t0[:, srcpix]
+            else:  # mean of the candidates' vectors (the paper's "mean filter")
+                nbu = tgt[:, None] + offu[None, :]
+                nbu = nbu.clamp_(0, n - 1)  # out-of-image neighbours are never candidates
+                wgt = c_sel.to(torch.float32)
+                cnt = wgt.sum(1)
+                for dst, srcf in ((to1, t1), (to0, t0)):
+                    vals = srcf[:, nbu]  # (2, S, 8)
+                    dst.view(2, -1)[:, tgt] = (vals * wgt[None]).sum(2) / cnt[None]
+            depth.view(-1)[tgt] = d.view(-1)[srcpix]
+            source.view(-1)[tgt] = res.source.reshape(-1)[srcpix]
+            filled.view(-1)[tgt] = True
+    new_valid = valid[None] | filled
+    holes = ~new_valid
+    if fallback_mv is not None and bool(holes.any()):
+        m = sanitize_mv(fallback_mv)
+        a = res.alpha
+        if res.mode == "interp":
+            c1, c0 = -(1.0 - a), a
+        else:
+            c1, c0 = a, 1.0 + a
+        to1 = torch.where(holes, m * c1, to1)
+        to0 = torch.where(holes, m * c0, to0)
+        if fallback_depth is not None:
+            depth = torch.where(holes, sanitize_depth(fallback_depth), depth)
+    return res.replace(to1=to1, to0=to0, depth=depth, valid=new_valid, source=source,
+                       filled=filled, holes=holes)
+
+
+def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str = "nearest",
+             fallback_mv: torch.Tensor | None = None,
+             fallback_depth: torch.Tensor | None = None) -> SplatResult:
+    """Mob-FGSR refinement of splatted motion: fill grid-like cracks, keep disocclusions.
+
+    For each empty or suspicious target pixel q, its 3x3 neighbours that are valid and
+    nearer than q by more than ``depth_threshold_rel`` (``d_n < d_q (1 - rel)``; for an
+    empty q every valid neighbour) are *candidates*; the others (including out-of-image
+    neighbours and q itself) are "similar". If the similar pixels contain a 2x2 block that
+    includes q, q is kept (an edge, a slope, or a genuine hole); otherwise q is a crack in
+    a nearer surface and takes the vectors (to1, to0), depth and source of the nearest
+    candidate (``fill='nearest'``, as the public Mob-FGSR code) or the mean of the
+    candidates' vectors with the nearest candidate's depth (``fill='mean'``, the paper's
+    wording). One pass, reading only pre-fill values (like the GPU version).
+
+    Pixels still empty afterwards are ``holes``. If ``fallback_mv`` (2, H, W) is given
+    they take linear motion along that field *at q* (the public code uses frame 0's
+    vectors, "the previous vector", for interpolation):
+      * interp: ``to0 = alpha * m(q)``, ``to1 = -(1 - alpha) * m(q)``;
+      * extrap: ``to1 = alpha * m(q)``, ``to0 = (1 + alpha) * m(q)``;
+    and ``depth = fallback_depth(q)`` when given (else +inf). Holes stay ``valid=False``.
+    Without fallback_mv holes keep zero vectors (use extrap_hole_fill for extrapolation).
+
+    Args:
+        result: SplatResult from splat_motion (per-frame or batched).
+        depth_threshold_rel: relative depth margin (default 0.01 = 1 %; the public code
+            uses 0.0005 on [0, 1] device depth).
+        fill: 'nearest' | 'mean'.
+        fallback_mv, fallback_depth: (2, H, W), (1, H, W) [batched like result] or None.
+
+    Returns:
+        A new SplatResult with to1, to0, depth, valid, source updated, ``filled`` (1, H, W)
+        bool = pixels changed by the refinement, ``holes`` (1, H, W) bool = pixels with no
+        splatted or refined vector.
+    """
+    _check_result(result)
+    check_choice(fill, "fill", ("nearest", "mean"))
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    if fallback_mv is not None:
+        fallback_mv = check_tensor(fallback_mv, "fallback_mv", 2)
+        check_same(result.depth, "result.depth", (fallback_mv, "fallback_mv"))
+    if fallback_depth is not None:
+        fallback_depth = check_tensor(fallback_depth, "fallback_depth", 1)
+        check_same(result.depth, "result.depth", (fallback_depth, "fallback_depth"))
+    if result.depth.dim() == 4:
+        return SplatResult.stack([
+            _gap_fill_frame(result.frame(i), thr, fill,
+                            None if fallback_mv is None else fallback_mv[i],
+                            None if fallback_depth is None else fallback_depth[i])
+            for i in range(result.depth.shape[0])])
+    return _gap_fill_frame(result, thr, fill, fallback_mv, fallback_depth)
+
+
+def _extrap_fill_frame(mv1, depth1, to1, valid, depth_target, alpha, thr):
+    h, w = depth1.shape[-2:]
+    to1 = to1.clone()
+    depth = sanitize_depth(depth_target).clone()
+    hole = ~valid.reshape(-1)
+    idx = hole.nonzero().squeeze(1)
+    filled = hole.view(1, h, w).clone()
+    if idx.numel() == 0:
+        return to1, depth, filled
+    d1 = sanitize_depth(depth1).reshape(-1)
+    m = sanitize_mv(mv1).reshape(2, -1)[:, idx] * alpha  # (2, M)
+    y = torch.div(idx, w, rounding_mode="floor")
+    x = idx - y * w
+    sx = x.to(torch.float32) + m[0]
+    sy = y.to(torch.float32) + m[1]
+    inside = (sx >= -0.5) & (sx < w - 0.5) & (sy >= -0.5) & (sy < h - 0.5)
+    ix = torch.floor(sx + 0.5).clamp_(0, w - 1).to(torch.int64)
+    iy = torch.floor(sy + 0.5).clamp_(0, h - 1).to(torch.int64)
+    ds = d1[iy * w + ix]
+    do = d1[idx]
+    # background = the sample is not nearer than the origin pixel (frame 1 at q)
+    bg = inside & ~(ds < do * (1.0 - thr))
+    to1.view(2, -1)[:, idx] = torch.where(bg[None], m, torch.zeros_like(m))
+    depth.view(-1)[idx] = torch.where(bg, ds, do)
+    return to1, depth, filled
+
+
+def extrap_hole_fill(mv1: torch.Tensor, depth1: torch.Tensor, to1: torch.Tensor,
+                     valid: torch.Tensor, depth_target: torch.Tensor, alpha: float,
+                     depth_threshold_rel: float = 1e-3):
+    """Mob-FGSR extrapolation hole rule ("disocclusion filling" with frame 1's vectors).
+
+    For each hole q (``valid`` False) of the extrapolated frame at time 1 + alpha: take
+    frame 1's vector at the same pixel, m = mv1(q), and read frame 1's depth at the pixel
+    nearest ``q + alpha * m`` (a point behind q along that motion). If that depth is
+    background, i.e. not nearer than the origin depth1(q) (``d_s >= d_o (1 - rel)``), the
+    hole takes that motion, ``to1 = alpha * m`` (sample frame 1 at q + alpha m, the
+    background the moving object uncovers); otherwise (nearer, or off-screen) zero motion,
+    ``to1 = 0``. Matches the public Mob-FGSR Warp_E pass.
+
+    Args:
+        mv1: (2, H, W) frame-1 vectors. depth1: (1, H, W) frame-1 depth (the one the splat
+            used, usually dilated). to1: (2, H, W) splatted/refined offsets to frame 1.
+        valid: (1, H, W) bool, False at holes. depth_target: (1, H, W) splatted depth.
+        alpha: extrapolation distance (>= 0). depth_threshold_rel: relative margin.
+        (All may carry a leading batch dim.)
+
+    Returns:
+        (to1, depth, filled): new (2, H, W) offsets, (1, H, W) depth (holes: the sampled
+        background depth, or depth1(q) for zero motion), (1, H, W) bool mask of the holes
+        that were filled (all of them).
+    """
+    mv1 = check_tensor(mv1, "mv1", 2)
+    depth1 = check_tensor(depth1, "depth1", 1)
+    to1 = check_tensor(to1, "to1", 2)
+    valid = check_tensor(valid, "valid", 1, dtype_kind="bool")
+    depth_target = check_tensor(depth_target, "depth_target", 1)
+    check_same(mv1, "mv1", (depth1, "depth1"), (to1, "to1"), (valid, "valid"),
+               (depth_target, "depth_target"))
+    a = check_alpha(alpha, hi=None)
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    if mv1.dim() == 4:
+        outs = [_extrap_fill_frame(mv1[i], depth1[i], to1[i], valid[i], depth_target[i], a, thr)
+                for i in range(mv1.shape[0])]
+        return tuple(torch.stack([o[k] for o in outs]) for k in range(3))
+    return _extrap_fill_frame(mv1, depth1, to1, valid, depth_target, a, thr)
+
+
+def fill_extrap_holes(result: SplatResult, mv1: torch.Tensor, depth1: torch.Tensor,
+                      depth_threshold_rel: float = 1e-3) -> SplatResult:
+    """extrap_hole_fill applied to a SplatResult (mode 'extrap'); returns a new result.
+
+    Hole pixels (``result.valid`` False) get to1 and depth from extrap_hole_fill and
+    ``to0 = to1 + mv1(q + to1)`` (nearest fetch); ``valid`` is unchanged, ``holes`` is set
+    to the filled pixels.
+    """
+    _check_result(result)
+    if result.mode != "extrap":
+        raise ValueError(f"fill_extrap_holes: needs an 'extrap' SplatResult, got {result.mode!r}")
+    to1, depth, filled = extrap_hole_fill(mv1, depth1, result.to1, result.valid, result.depth,
+                                          result.alpha, depth_threshold_rel)
+    from fgcli.ops.warp import sample_nearest
+    m_at, _ = sample_nearest(sanitize_mv(check_tensor(mv1, "mv1", 2)), to1)
+    to0 = torch.where(filled, to1 + m_at, result.to0)
+    return result.replace(to1=to1, to0=to0, depth=depth, holes=filled)

@@ -1,0 +1,90 @@
+"""Baseline stages every eval table carries: repeat, cross-fade blend, mv-warp."""
+from __future__ import annotations
+
+from fgcli.stages.base import Option, Stage, register
+
+
+def _scaled_mv(ctx):
+    """Generated-frame MVs under a static-field, linear-motion assumption: frame 1's vectors
+    scaled to the time since the previous output frame."""
+    a = ctx["alpha"]
+    prev = float(ctx.get("prev_time") or 0.0)
+    return ctx["mv1"] * (a - prev)
+
+
+@register
+class Repeat(Stage):
+    name = "repeat"
+    help = ("Baseline: copy the temporally nearest rendered frame (interpolation: frame 0 for "
+            "alpha <= 0.5; extrapolation: frame 1).")
+    inputs = ("color1", "depth1", "mv1", "alpha", "mode")
+    optional_inputs = ("color0", "depth0", "prev_time")
+    outputs = ("color", "depth", "mv")
+
+    def run(self, ctx):
+        import torch
+
+        a, prev = ctx["alpha"], float(ctx.get("prev_time") or 0.0)
+        if ctx["mode"] == "interp" and a <= 0.5:
+            color, depth = ctx["color0"], ctx["depth0"]
+        else:
+            color, depth = ctx["color1"], ctx["depth1"]
+        # content jumps to frame 1 at the first output after alpha 0.5 (interp): its vectors
+        # then span the whole interval; otherwise the output repeats the previous content
+        jump = ctx["mode"] == "interp" and a > 0.5 >= prev
+        mv = ctx["mv1"].clone() if jump else torch.zeros_like(ctx["mv1"])
+        return {"color": color.clone(), "depth": depth.clone(), "mv": mv}
+
+
+@register
+class CrossFade(Stage):
+    name = "crossfade"
+    help = "Baseline: linear cross-fade (1 - alpha) c0 + alpha c1."
+    inputs = ("color0", "color1", "depth0", "depth1", "mv1", "alpha")
+    optional_inputs = ("prev_time",)
+    outputs = ("color", "depth", "mv")
+
+    def run(self, ctx):
+        import torch
+
+        from fgcli.ops import blend_linear
+
+        return {"color": blend_linear(ctx["color0"], ctx["color1"], ctx["alpha"]),
+                "depth": torch.minimum(ctx["depth0"], ctx["depth1"]), "mv": _scaled_mv(ctx)}
+
+
+@register
+class MVWarp(Stage):
+    name = "mv_warp"
+    help = ("Baseline: backward-warp the nearest rendered frame by its scaled MVs (vector "
+            "field treated as static in screen space).")
+    inputs = ("color1", "depth1", "mv1", "alpha", "mode")
+    optional_inputs = ("color0", "depth0", "prev_time")
+    outputs = ("color", "depth", "mv")
+    options = (Option("filter", "choice", "bilinear", "resampling filter",
+                      choices=("bilinear", "catmull-rom", "nearest")),)
+
+    def needed(self, ctx, facts):
+        if not facts["any_motion"]:
+            return False, "no motion: warp is the identity"
+        return True, ""
+
+    def skip(self, ctx):
+        out = Repeat().run(ctx)
+        return out
+
+    def run(self, ctx):
+        from fgcli.ops import mv_warp_extrap, mv_warp_interp, sample_nearest
+
+        a, mv1 = ctx["alpha"], ctx["mv1"]
+        if ctx["mode"] == "interp":
+            color = mv_warp_interp(ctx["color0"], ctx["color1"], mv1, a, self.filter)
+            if a <= 0.5:
+                depth, _ = sample_nearest(ctx["depth0"], mv1 * a)
+            else:
+                depth, _ = sample_nearest(ctx["depth1"], mv1 * -(1.0 - a))
+        else:
+            color = mv_warp_extrap(ctx["color1"], mv1, a, self.filter)
+            depth, _ = sample_nearest(ctx["depth1"], mv1 * a)
+        mv = _scaled_mv(ctx) if ctx["mode"] == "interp" else mv1 * (a - float(ctx.get("prev_time") or 0.0))
+        return {"color": color, "depth": depth, "mv": mv}

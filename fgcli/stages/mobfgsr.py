@@ -1,0 +1,229 @@
+"""Stages shared by mob-fgsr and later pipelines: dilate, splat, gap fill, extrapolation hole
+fill, warp, bidirectional blend, generated-frame motion. Thin wrappers over fgcli.ops."""
+from __future__ import annotations
+
+from fgcli.stages.base import Option, Stage, register
+
+
+def _any_holes(ctx) -> bool:
+    return bool((~ctx["motion"].valid).any().item())
+
+
+@register
+class Dilate(Stage):
+    name = "dilate"
+    help = "3x3 nearest-depth dilation of frame 1's depth and MVs (Mob-FGSR, FSR 3)."
+    inputs = ("depth1", "mv1")
+    outputs = ("depth1_d", "mv1_d")
+    options = (Option("radius", "int", 1, "window radius (1 = 3x3)", range=(0, 3)),)
+
+    def needed(self, ctx, facts):
+        if not facts["any_motion"]:
+            return False, "no motion: dilation would not change the splat"
+        return self.radius > 0, "radius 0"
+
+    def skip(self, ctx):
+        return {"depth1_d": ctx["depth1"], "mv1_d": ctx["mv1"]}
+
+    def run(self, ctx):
+        from fgcli.ops import dilate_nearest_depth
+
+        d, m = dilate_nearest_depth(ctx["depth1"], ctx["mv1"], self.radius)
+        return {"depth1_d": d, "mv1_d": m}
+
+
+@register
+class Splat(Stage):
+    name = "splat"
+    help = ("Depth-aware forward splat of frame 1's motion to the generated time, nearest "
+            "surface wins (packed int64 keys, scatter_reduce amin).")
+    inputs = ("depth1_d", "mv1_d", "alpha", "mode")
+    optional_inputs = ("mv0",)
+    outputs = ("motion",)
+    options = (
+        Option("motion", "choice", "auto", "motion model: auto = quadratic for interpolation, "
+               "linear for extrapolation (as the public Mob-FGSR code)",
+               choices=("auto", "linear", "quadratic")),
+        Option("mv0_fetch", "choice", "nearest", "how frame 0's vector is fetched for the "
+               "quadratic model", choices=("nearest", "bilinear")),
+    )
+
+    def model(self, mode: str) -> str:
+        if self.motion == "auto":
+            return "quadratic" if mode == "interp" else "linear"
+        return self.motion
+
+    def needed(self, ctx, facts):
+        if not facts["any_motion"]:
+            return False, "no motion: identity splat"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        from fgcli.ops import SplatResult
+
+        d = ctx["depth1"]
+        H, W = d.shape[-2:]
+        z = torch.zeros(2, H, W, dtype=torch.float32, device=d.device)
+        return {"motion": SplatResult(
+            to1=z, to0=z.clone(), depth=d, valid=torch.ones(1, H, W, dtype=torch.bool, device=d.device),
+            source=torch.arange(H * W, device=d.device).view(1, H, W), alpha=ctx["alpha"],
+            mode=ctx["mode"])}
+
+    def run(self, ctx):
+        from fgcli.ops import splat_motion
+
+        model = self.model(ctx["mode"])
+        mv0 = ctx.get("mv0") if model == "quadratic" else None
+        return {"motion": splat_motion(ctx["depth1_d"], ctx["mv1_d"], mv0, ctx["alpha"],
+                                       model="linear" if mv0 is None else model,
+                                       mode=ctx["mode"], mv0_fetch=self.mv0_fetch)}
+
+
+@register
+class GapFill(Stage):
+    name = "gap_fill"
+    help = ("Mob-FGSR refinement: fill splat cracks inside nearer surfaces (2x2-block rule); "
+            "remaining holes fall back to linear motion of the previous vector.")
+    inputs = ("motion",)
+    optional_inputs = ("mv0", "mv1", "depth1")
+    outputs = ("motion",)
+    options = (
+        Option("depth_threshold", "float", 0.01, "relative depth margin for 'nearer' "
+               "neighbours", range=(0.0, 1.0)),
+        Option("fill", "choice", "nearest", "candidate to copy: nearest (public code) or mean "
+               "(paper wording)", choices=("nearest", "mean")),
+        Option("fallback", "choice", "prev_mv", "holes left after refinement: linear motion of "
+               "the previous vector (frame 0's in interpolation) or leave empty",
+               choices=("prev_mv", "none")),
+    )
+
+    def needed(self, ctx, facts):
+        if not _any_holes(ctx):
+            return False, "no holes after splat"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"motion": ctx["motion"]}
+
+    def run(self, ctx):
+        from fgcli.ops import gap_fill
+
+        fb = fbd = None
+        if self.fallback == "prev_mv" and ctx["mode"] == "interp":
+            fb = ctx.get("mv0") if ctx.get("mv0") is not None else ctx["mv1"]
+            fbd = ctx["depth1"]
+        return {"motion": gap_fill(ctx["motion"], self.depth_threshold, self.fill, fb, fbd)}
+
+
+@register
+class ExtrapHoleFill(Stage):
+    name = "extrap_fill"
+    help = ("Mob-FGSR extrapolation disocclusion rule: a hole takes frame 1's vector at the "
+            "pixel if the surface it points to is background, else zero motion.")
+    inputs = ("motion", "mv1", "depth1_d")
+    outputs = ("motion",)
+    options = (Option("depth_threshold", "float", 1e-3, "relative depth margin", range=(0.0, 1.0)),)
+
+    def needed(self, ctx, facts):
+        if not _any_holes(ctx):
+            return False, "no holes left"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"motion": ctx["motion"]}
+
+    def run(self, ctx):
+        from fgcli.ops import fill_extrap_holes
+
+        return {"motion": fill_extrap_holes(ctx["motion"], ctx["mv1"], ctx["depth1_d"],
+                                            self.depth_threshold)}
+
+
+@register
+class Warp(Stage):
+    name = "warp"
+    help = "Backward-warp the rendered frames (color and depth) along the generated motion."
+    inputs = ("motion", "color1", "depth1")
+    optional_inputs = ("color0", "depth0")
+    outputs = ("s0", "s1", "sd0", "sd1", "v0", "v1")
+    options = (Option("filter", "choice", "bilinear", "resampling filter",
+                      choices=("bilinear", "catmull-rom", "nearest")),)
+
+    def needed(self, ctx, facts):
+        m = ctx["motion"]
+        if not facts["any_motion"] and not bool(m.to1.any()) and not bool(m.to0.any()):
+            return False, "zero motion: samples are the rendered frames"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        c1 = ctx["color1"]
+        ones = torch.ones(1, *c1.shape[-2:], dtype=torch.bool, device=c1.device)
+        return {"s0": ctx.get("color0"), "s1": c1, "sd0": ctx.get("depth0"), "sd1": ctx["depth1"],
+                "v0": ones, "v1": ones}
+
+    def run(self, ctx):
+        from fgcli.ops import backward_warp, sample_nearest
+
+        m = ctx["motion"]
+        s1, v1 = backward_warp(ctx["color1"], m.to1, self.filter)
+        sd1, _ = sample_nearest(ctx["depth1"], m.to1)
+        out = {"s1": s1, "v1": v1, "sd1": sd1, "s0": None, "sd0": None, "v0": None}
+        if ctx["mode"] == "interp":
+            s0, v0 = backward_warp(ctx["color0"], m.to0, self.filter)
+            sd0, _ = sample_nearest(ctx["depth0"], m.to0)
+            out.update(s0=s0, v0=v0, sd0=sd0)
+        return out
+
+
+@register
+class Blend(Stage):
+    name = "blend"
+    help = ("Mob-FGSR Eq. 1 bidirectional blend: same surface and similar brightness -> "
+            "temporally nearer frame, else lerp by alpha; different surfaces -> farther "
+            "(disoccluded background). Extrapolation: the frame-1 sample.")
+    inputs = ("s1", "sd1", "v1", "alpha", "mode")
+    optional_inputs = ("s0", "sd0", "v0", "motion")
+    outputs = ("color",)
+    options = (
+        Option("t_d", "float", 0.02, "depth agreement threshold, relative to linear depth "
+               "(paper: 0.0028 on [0,1] device depth)", range=(0.0, 10.0)),
+        Option("t_b", "float", 0.13, "brightness agreement threshold (paper: 0.13, on sRGB)",
+               range=(0.0, 10.0)),
+        Option("target_depth", "bool", False, "prefer the sample whose depth matches the "
+               "splatted depth when the two disagree (fgen extension)"),
+    )
+
+    def run(self, ctx):
+        from fgcli.ops import blend_interp
+
+        if ctx["mode"] == "extrap":
+            return {"color": ctx["s1"]}
+        dt = ctx["motion"].depth if self.target_depth and ctx.get("motion") is not None else None
+        return {"color": blend_interp(ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"],
+                                      ctx["v1"], dt, ctx["alpha"], self.t_d, self.t_b)}
+
+
+@register
+class MotionOut(Stage):
+    name = "motion_out"
+    help = ("Depth and MVs of the generated frame (toward the previous output frame, linear "
+            "in time within the interval), so a downstream TAA/upscaler can consume it.")
+    inputs = ("motion", "alpha", "mode")
+    optional_inputs = ("prev_time",)
+    outputs = ("depth", "mv")
+    options = ()
+
+    def run(self, ctx):
+        from fgcli.ops import generated_mv
+
+        m = ctx["motion"]
+        a = ctx["alpha"]
+        prev = float(ctx.get("prev_time") or 0.0)
+        mv = generated_mv(m)
+        if a > 0 and prev > 0:
+            mv = mv * ((a - prev) / a)
+        return {"mv": mv, "depth": m.depth}

@@ -1,0 +1,683 @@
+"""Vectorised ray casting against analytic primitives (torch, CPU), exact buffers at any time.
+
+Work layout: the frame is cut into row chunks of at most MAX_RAYS rays; within a chunk every
+sample of every pixel is one ray, and each stage (primary visibility, surface attributes,
+lights, shadow rays, reflection rays, translucent layer) is a handful of elementwise tensor
+ops per primitive. Vectors are tuples of three (N,) tensors (or Python floats for values
+shared by every ray, such as the camera position), so constant operands cost nothing.
+
+Only elementwise ops, gathers and scatters with unique indices are used (no matmul, no
+reductions across rays), so the output does not depend on the thread count: the same scene
+gives the same bytes.
+
+Work counters (scene.stats, cumulative; `scene.reset_stats()`): primary_rays, shadow_rays,
+reflection_rays, translucent_rays, primitive_tests (ray-primitive intersection tests),
+disocclusion_rays (extras only).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from fgcli.frame import Camera, Frame
+from fgcli.synth import textures
+from fgcli.synth.motion import look_at, perspective
+from fgcli.synth.scene import Scene
+
+INF = math.inf
+FILTER = 1.0  # texture filter width, in pixels
+MAX_RAYS = 1 << 16  # rays per chunk: keeps the working set in cache and memory bounded
+_EPS = 1e-6
+
+
+# ----------------------------------------------------------------------------- cameras
+
+@dataclass
+class FrameCamera:
+    """The camera of one rendered frame: size (overscan border included), matrices."""
+
+    width: int
+    height: int
+    border: int
+    jitter: tuple[float, float]  # sample offset from the pixel centre, pixels
+    position: np.ndarray
+    world_to_camera: np.ndarray
+    projection: np.ndarray  # without jitter
+    tan_x: float
+    tan_y: float
+
+    @property
+    def camera(self) -> Camera:
+        return Camera(self.world_to_camera.copy(), self.projection.copy())
+
+
+def _halton(i: int, base: int) -> float:
+    f, r = 1.0, 0.0
+    while i > 0:
+        f /= base
+        r += f * (i % base)
+        i //= base
+    return r
+
+
+def frame_camera(scene: Scene, t: float, role: str = "gt") -> FrameCamera:
+    """Camera of the frame rendered at time t (input-frame units).
+
+    role 'input' applies the `jitter` effect (lower resolution, Halton(2,3) sub-pixel offset
+    per input frame) and the `overscan` border; role 'gt' renders the nominal frame.
+    """
+    W, H = scene.width, scene.height
+    jit, border = (0.0, 0.0), 0
+    if role == "input":
+        if scene.has("jitter"):
+            W = max(1, int(round(W * scene.jitter_scale)))
+            H = max(1, int(round(H * scene.jitter_scale)))
+            k = int(math.floor(t + 0.5)) % 16 + 1
+            jit = (_halton(k, 2) - 0.5, _halton(k, 3) - 0.5)
+        if scene.has("overscan"):
+            border = scene.overscan
+    pos, tgt = scene.camera.at(scene.seconds(t))
+    ty = math.tan(math.radians(scene.camera.fov) / 2)
+    tx = ty * W / H
+    tx *= (W + 2 * border) / W
+    ty *= (H + 2 * border) / H
+    proj = perspective(tx, ty, scene.camera.near, scene.camera.far)
+    return FrameCamera(W + 2 * border, H + 2 * border, border, jit, pos, look_at(pos, tgt),
+                       proj, tx, ty)
+
+
+# ----------------------------------------------------------------------------- vectors
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _add_scaled(a, b, s):
+    return (a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s)
+
+
+def _rot(R, v):
+    """R (3x3 nested list) @ v."""
+    return tuple(R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2] for i in range(3))
+
+
+def _rot_t(R, v):
+    """R^T @ v."""
+    return tuple(R[0][i] * v[0] + R[1][i] * v[1] + R[2][i] * v[2] for i in range(3))
+
+
+def _normalize(v):
+    inv = torch.rsqrt(torch.clamp(_dot(v, v), min=1e-30))
+    return (v[0] * inv, v[1] * inv, v[2] * inv)
+
+
+def _take(v, sel):
+    return tuple(c[sel] if isinstance(c, torch.Tensor) else c for c in v)
+
+
+class _Xf:
+    """An object's transform at one time: x_world = R @ x_local + T."""
+
+    __slots__ = ("R", "T")
+
+    def __init__(self, R: np.ndarray, T: np.ndarray):
+        self.R = [[float(x) for x in row] for row in R]
+        self.T = tuple(float(x) for x in T)
+
+    def to_local(self, o, d):
+        return _rot_t(self.R, _sub(o, self.T)), _rot_t(self.R, d)
+
+    def to_world(self, p):
+        q = _rot(self.R, p)
+        return (q[0] + self.T[0], q[1] + self.T[1], q[2] + self.T[2])
+
+
+def _transforms(scene: Scene, t: float) -> list[_Xf]:
+    s = scene.seconds(t)
+    return [_Xf(*o.motion.at(s)) for o in scene.objects]
+
+
+# ----------------------------------------------------------------------------- primitives
+
+def _isect(ob, o, d, tmin: float) -> torch.Tensor:
+    """Ray parameter of the first hit > tmin in local space (inf for a miss). d: tensors."""
+    if ob.shape == "sphere":
+        r = ob.radius
+        a = _dot(d, d)
+        b = _dot(o, d)
+        c = _dot(o, o) - r * r
+        disc = b * b - a * c
+        sq = torch.sqrt(torch.clamp(disc, min=0.0))
+        inv_a = 1.0 / a
+        t0 = (-b - sq) * inv_a
+        t1 = (-b + sq) * inv_a
+        t = torch.where(t0 > tmin, t0, t1)
+        return torch.where((disc >= 0) & (t > tmin), t, INF)
+    if ob.shape == "plane":
+        t = -o[1] / d[1]
+        ok = t > tmin
+        hx, hz = float(ob.half[0]), float(ob.half[2])
+        if math.isfinite(hx):
+            ok = ok & (torch.abs(o[0] + t * d[0]) <= hx) & (torch.abs(o[2] + t * d[2]) <= hz)
+        return torch.where(ok, t, INF)
+    if ob.shape == "box":
+        tn = tf = None
+        for i in range(3):
+            h = float(ob.half[i])
+            inv = 1.0 / d[i]
+            t1 = (-h - o[i]) * inv
+            t2 = (h - o[i]) * inv
+            lo, hi = torch.fmin(t1, t2), torch.fmax(t1, t2)
+            tn = lo if tn is None else torch.fmax(tn, lo)
+            tf = hi if tf is None else torch.fmin(tf, hi)
+        t = torch.where(tn > tmin, tn, tf)
+        return torch.where((tf >= tn) & (tf > tmin), t, INF)
+    if ob.shape == "cylinder":
+        r, hh = ob.radius, ob.half_height
+        a = d[0] * d[0] + d[2] * d[2]
+        b = o[0] * d[0] + o[2] * d[2]
+        c = o[0] * o[0] + o[2] * o[2] - r * r
+        disc = b * b - a * c
+        sq = torch.sqrt(torch.clamp(disc, min=0.0))
+        inv_a = 1.0 / torch.clamp(a, min=1e-30)
+        best = None
+        for sgn in (-1.0, 1.0):
+            ts = (-b + sgn * sq) * inv_a
+            y = o[1] + ts * d[1]
+            ok = (disc >= 0) & (a > 1e-30) & (ts > tmin) & (torch.abs(y) <= hh)
+            ts = torch.where(ok, ts, INF)
+            best = ts if best is None else torch.fmin(best, ts)
+        for cap in (-hh, hh):
+            tc = (cap - o[1]) / d[1]
+            x, z = o[0] + tc * d[0], o[2] + tc * d[2]
+            ok = (tc > tmin) & (x * x + z * z <= r * r)
+            best = torch.fmin(best, torch.where(ok, tc, INF))
+        return best
+    raise ValueError(ob.shape)  # pragma: no cover
+
+
+def _surface_local(ob, p):
+    """Local normal (3 tensors) and surface coordinates (u, v) at local hit points p."""
+    x, y, z = p
+    one, zero = torch.ones_like(x), torch.zeros_like(x)
+    if ob.shape == "plane":
+        return (zero, one, zero), (x, z)
+    if ob.shape == "sphere":
+        r = ob.radius
+        n = (x * (1.0 / r), y * (1.0 / r), z * (1.0 / r))
+        u = torch.atan2(x, z) * r
+        v = torch.asin(torch.clamp(n[1], -1.0, 1.0)) * r
+        return n, (u, v)
+    if ob.shape == "box":
+        hx, hy, hz = (float(h) for h in ob.half)
+        ax, ay, az = torch.abs(x) / hx, torch.abs(y) / hy, torch.abs(z) / hz
+        fx = (ax >= ay) & (ax >= az)
+        fy = ~fx & (ay >= az)
+        fz = ~fx & ~fy
+        n = (torch.where(fx, torch.sign(x), zero), torch.where(fy, torch.sign(y), zero),
+             torch.where(fz, torch.sign(z), zero))
+        u = torch.where(fx, z, x)
+        v = torch.where(fy, z, y)
+        return n, (u, v)
+    if ob.shape == "cylinder":
+        r, hh = ob.radius, ob.half_height
+        rho = torch.sqrt(x * x + z * z)
+        cap = torch.abs(torch.abs(y) - hh) < torch.abs(rho - r)
+        inv = 1.0 / torch.clamp(rho, min=1e-12)
+        n = (torch.where(cap, zero, x * inv), torch.where(cap, torch.sign(y), zero),
+             torch.where(cap, zero, z * inv))
+        u = torch.where(cap, x, torch.atan2(x, z) * r)
+        v = torch.where(cap, z, y)
+        return n, (u, v)
+    raise ValueError(ob.shape)  # pragma: no cover
+
+
+# ----------------------------------------------------------------------------- tracing
+
+def _count(scene: Scene, key: str, n: int) -> None:
+    scene.stats[key] = scene.stats.get(key, 0) + int(n)
+
+
+def _nearest(scene: Scene, ids: list[int], xf: list[_Xf], o, d, n: int, tmin: float = 0.0):
+    """Nearest hit among objects `ids`: (t, object id; -1 = none)."""
+    best = torch.full((n,), INF)
+    who = torch.full((n,), -1, dtype=torch.int64)
+    for k in ids:
+        ol, dl = xf[k].to_local(o, d)
+        t = _isect(scene.objects[k], ol, dl, tmin)
+        closer = t < best
+        best = torch.where(closer, t, best)
+        who = torch.where(closer, k, who)
+        _count(scene, "primitive_tests", n)
+    return best, who
+
+
+def _occluded(scene: Scene, ids: list[int], xf: list[_Xf], o, d, tmax, n: int):
+    """Any hit in (tmin, tmax) among objects `ids` (bool (n,))."""
+    blocked = torch.zeros(n, dtype=torch.bool)
+    for k in ids:
+        ol, dl = xf[k].to_local(o, d)
+        blocked |= _isect(scene.objects[k], ol, dl, 1e-5) < tmax
+        _count(scene, "primitive_tests", n)
+    return blocked
+
+
+@dataclass
+class _Hits:
+    """Surface attributes of a set of rays (zeros where nothing was hit)."""
+
+    P: tuple  # world position
+    n: tuple  # world normal, facing the ray
+    albedo: tuple
+    rough: torch.Tensor
+    spec: torch.Tensor
+    mirror: torch.Tensor
+    opacity: torch.Tensor
+    plocal: tuple  # hit point in object space (for motion vectors)
+
+
+def _surfaces(scene: Scene, xf: list[_Xf], o, d, t, who, seconds: float, n: int,
+              pix: float, t0=None) -> _Hits:
+    """pix: pixel size at unit distance (texture filter width); t0: distance already
+    travelled by the ray before its origin (secondary rays)."""
+    z = lambda: torch.zeros(n)  # noqa: E731
+    P = [z(), z(), z()]
+    N = [z(), z(), z()]
+    A = [z(), z(), z()]
+    L = [z(), z(), z()]
+    rough, spec, mirror, opac = z(), z(), z(), torch.ones(n)
+    scroll = scene.has("texture_animation")
+    for k, ob in enumerate(scene.objects):
+        sel = torch.nonzero(who == k).squeeze(1)
+        if sel.numel() == 0:
+            continue
+        ok, dk = _take(o, sel), _take(d, sel)
+        tk = t[sel]
+        ol, dl = xf[k].to_local(ok, dk)
+        pl = _add_scaled(ol, dl, tk)
+        nl, (u, v) = _surface_local(ob, pl)
+        nw = _rot(xf[k].R, nl)
+        # the pixel's footprint on the surface: distance x pixel angle / cos(incidence)
+        dd = _dot(dk, dk)
+        cos = torch.abs(_dot(nl, dl)) * torch.rsqrt(dd)
+        dist = tk * torch.sqrt(dd)
+        if t0 is not None:
+            dist = dist + t0[sel]
+        fp = dist * (FILTER * pix) / torch.clamp(cos, min=0.3)
+        alb = textures.evaluate(ob.texture, u, v, seconds, scroll, fp)
+        pw = _add_scaled(ok, dk, tk)
+        for i in range(3):
+            P[i][sel] = pw[i] if isinstance(pw[i], torch.Tensor) else torch.full_like(tk, pw[i])
+            N[i][sel] = nw[i]
+            A[i][sel] = alb[i]
+            L[i][sel] = pl[i]
+        rough[sel] = ob.roughness
+        spec[sel] = ob.specular
+        mirror[sel] = ob.mirror
+        opac[sel] = ob.opacity
+    # face the viewer (planes are two-sided; the inside of a closed shape faces in)
+    back = _dot(N, d) > 0
+    N = tuple(torch.where(back, -c, c) for c in N)
+    return _Hits(tuple(P), N, tuple(A), rough, spec, mirror, opac, tuple(L))
+
+
+def _sky(scene: Scene, d):
+    dn = _normalize(d)
+    y = dn[1]
+    up = torch.clamp(y, 0.0, 1.0) ** 0.6
+    dn_ = torch.clamp(-y, 0.0, 1.0) ** 0.4
+    out = []
+    for i in range(3):
+        h, zt, g = (float(scene.sky_horizon[i]), float(scene.sky_zenith[i]),
+                    float(scene.sky_ground[i]))
+        out.append(h + (zt - h) * up + (g - h) * dn_)
+    return out
+
+
+def _lights_at(scene: Scene, t: float):
+    s = scene.seconds(t)
+    out = []
+    for L in scene.lights:
+        R, T = L.motion.at(s)
+        col = [float(c) for c in L.color]
+        if L.kind == "directional":
+            toward = -(R @ L.direction)
+            out.append(("directional", col, tuple(float(x) for x in toward)))
+        else:
+            out.append(("point", col, tuple(float(x) for x in T)))
+    return out
+
+
+def _shade(scene: Scene, lights, xf, h: _Hits, d, m: int, shadows: bool, specular: bool):
+    """Direct lighting of m hit points: ambient + diffuse (+ shadows) (+ specular)."""
+    amb = 0.65 + 0.35 * h.n[1]
+    col = [h.albedo[i] * (float(scene.ambient[i]) * amb) for i in range(3)]
+    V = None
+    casters = [k for k in scene.opaque if scene.objects[k].shadow]
+    for kind, lcol, v in lights:
+        if kind == "directional":
+            Ld = tuple(torch.full((m,), c) for c in v)
+            dist = None
+            fall = None
+        else:
+            Lv = _sub(v, h.P)
+            d2 = torch.clamp(_dot(Lv, Lv), min=1e-12)
+            dist = torch.sqrt(d2)
+            Ld = (Lv[0] / dist, Lv[1] / dist, Lv[2] / dist)
+            fall = 1.0 / d2
+        ndl = torch.clamp(_dot(h.n, Ld), min=0.0)
+        w = ndl if fall is None else ndl * fall
+        if shadows and casters:
+            sel = torch.nonzero(ndl > 0).squeeze(1)
+            if sel.numel():
+                Ps, ns = _take(h.P, sel), _take(h.n, sel)
+                # offset the origin along the normal, relative to the distance from the camera
+                eps = 2e-4 * (1.0 + torch.sqrt(_dot(Ps, Ps)))
+                org = _add_scaled(Ps, ns, eps)
+                tmax = INF if dist is None else dist[sel]
+                blocked = _occluded(scene, casters, xf, org, _take(Ld, sel), tmax, sel.numel())
+                _count(scene, "shadow_rays", sel.numel())
+                w = w.index_put((sel,), torch.where(blocked, 0.0, w[sel]))
+        for i in range(3):
+            col[i] = col[i] + h.albedo[i] * (w * lcol[i])
+        if specular:
+            if V is None:
+                V = _normalize((-d[0], -d[1], -d[2]))
+                shin = torch.clamp(2.0 / (h.rough * h.rough) - 2.0, min=1.0)
+                norm = (shin + 8.0) * (1.0 / (8.0 * math.pi)) * h.spec
+            Hv = _normalize(_add_scaled(Ld, V, 1.0))
+            sp = torch.clamp(_dot(h.n, Hv), min=0.0) ** shin * norm * w
+            for i in range(3):
+                col[i] = col[i] + sp * lcol[i]
+    return col
+
+
+def _trace_shade(scene, lights, xf, o, d, n: int, seconds: float, ids: list[int], pix, t0):
+    """A secondary ray: nearest hit among ids, shaded with ambient + diffuse; sky if none."""
+    t, who = _nearest(scene, ids, xf, o, d, n, tmin=1e-5)
+    hit = who >= 0
+    sky = _sky(scene, d)
+    if not bool(hit.any()):
+        return sky
+    h = _surfaces(scene, xf, o, d, t, who, seconds, n, pix, t0)
+    col = _shade(scene, lights, xf, h, d, n, shadows=False, specular=False)
+    return [torch.where(hit, col[i], sky[i]) for i in range(3)]
+
+
+# ----------------------------------------------------------------------------- render
+
+def _sample_offsets(spp: int):
+    """Regular spp x spp grid of sub-pixel offsets; index of the pixel-centre sample
+    (appended, with no weight in the color, when spp is even)."""
+    g = [(i + 0.5) / spp - 0.5 for i in range(spp)]
+    offs = [(gx, gy) for gy in g for gx in g]
+    if spp % 2 == 1:
+        return offs, len(offs), (spp // 2) * spp + spp // 2
+    return offs + [(0.0, 0.0)], len(offs), len(offs)
+
+
+def _camera_rays(fc: FrameCamera, px: torch.Tensor, py: torch.Tensor):
+    """World ray directions through pixel positions (px, py) (not unit: view depth = t)."""
+    a = (px * (2.0 / fc.width) - 1.0) * fc.tan_x
+    b = (1.0 - py * (2.0 / fc.height)) * fc.tan_y
+    C = fc.world_to_camera[:3, :3].T.tolist()  # camera-to-world rotation
+    return tuple(C[i][0] * a + C[i][1] * b - C[i][2] for i in range(3))
+
+
+def _project(M, p, w_in: float = 1.0):
+    """Clip-space x, y, w of world points p under the 4x4 M (nested list)."""
+    cx = M[0][0] * p[0] + M[0][1] * p[1] + M[0][2] * p[2] + M[0][3] * w_in
+    cy = M[1][0] * p[0] + M[1][1] * p[1] + M[1][2] * p[2] + M[1][3] * w_in
+    cw = M[3][0] * p[0] + M[3][1] * p[1] + M[3][2] * p[2] + M[3][3] * w_in
+    return cx, cy, cw
+
+
+def render(scene: Scene, t: float, prev_t: float | None = None, spp: int | None = None,
+           role: str = "gt", number: int | None = None, extras: dict | None = None) -> Frame:
+    """Render the buffers of `scene` at time t (input-frame units; may be fractional).
+
+    prev_t: the time the motion vectors point to (None: zero vectors). role: 'input'
+    applies jitter/overscan (see frame_camera), 'gt' renders the nominal frame.
+    extras: when a dict is given it receives (H, W) tensors object_id (int, -1 sky), edge
+    (bool: the pixel's samples see more than one object), and when prev_t is given
+    prev_depth (view depth of the pixel's surface point at prev_t) and disoccluded (bool:
+    that point is hidden or off-screen at prev_t; costs one extra ray per pixel).
+    Work done is added to scene.stats.
+    """
+    with torch.inference_mode():
+        return _render(scene, float(t), None if prev_t is None else float(prev_t),
+                       spp or scene.spp, role, number, extras)
+
+
+def _render(scene, t, prev_t, spp, role, number, extras):
+    fc = frame_camera(scene, t, role)
+    W, H = fc.width, fc.height
+    seconds = scene.seconds(t)
+    xf = _transforms(scene, t)
+    lights = _lights_at(scene, t)
+    prev = None
+    if prev_t is not None:
+        fcp = frame_camera(scene, prev_t, role)
+        Mp = (fcp.projection @ fcp.world_to_camera).tolist()
+        prev = (fcp, Mp, _transforms(scene, prev_t), fcp.world_to_camera[2].tolist())
+    offs, n_color, centre = _sample_offsets(spp)
+    S = len(offs)
+    HW = H * W
+    color = torch.zeros(3, HW)
+    cover = torch.zeros(HW)
+    depth = torch.full((HW,), INF)
+    mv = torch.zeros(2, HW)
+    normal = torch.zeros(3, HW)
+    albedo = torch.zeros(3, HW)
+    rough = torch.ones(HW)
+    want = extras is not None
+    if want:
+        oid = torch.full((HW,), -1, dtype=torch.int64)
+        edge = torch.zeros(HW, dtype=torch.bool)
+        pdepth = torch.full((HW,), INF)
+        disocc = torch.zeros(HW, dtype=torch.bool)
+    rows = max(1, MAX_RAYS // (S * W))
+    xs = torch.arange(W, dtype=torch.float32) + (0.5 + fc.jitter[0])
+    opaque, transl = scene.opaque, scene.translucent
+    origin = tuple(float(x) for x in fc.position)
+    pix = 2.0 * fc.tan_y / fc.height
+    for y0 in range(0, H, rows):
+        y1 = min(H, y0 + rows)
+        M = (y1 - y0) * W
+        n = S * M
+        ys = torch.arange(y0, y1, dtype=torch.float32) + (0.5 + fc.jitter[1])
+        px = torch.cat([(xs[None, :] + ox).expand(y1 - y0, W).reshape(-1) for ox, _ in offs])
+        py = torch.cat([(ys[:, None] + oy).expand(y1 - y0, W).reshape(-1) for _, oy in offs])
+        d = _camera_rays(fc, px, py)
+        _count(scene, "primary_rays", n)
+        tt, who = _nearest(scene, opaque, xf, origin, d, n)
+        hit = who >= 0
+        h = _surfaces(scene, xf, origin, d, tt, who, seconds, n, pix)
+        col = [torch.zeros(n) for _ in range(3)]
+        hsel = torch.nonzero(hit).squeeze(1)
+        if hsel.numel():
+            hh = _Hits(*(_take(getattr(h, f), hsel) if isinstance(getattr(h, f), tuple)
+                         else getattr(h, f)[hsel] for f in _Hits.__dataclass_fields__))
+            dh = _take(d, hsel)
+            c = _shade(scene, lights, xf, hh, dh, hsel.numel(), scene.has("shadows"),
+                       scene.has("specular"))
+            if scene.has("reflection"):
+                msel = torch.nonzero(hh.mirror > 0).squeeze(1)
+                if msel.numel():
+                    dm = _normalize(_take(dh, msel))
+                    nm = _take(hh.n, msel)
+                    dn = _dot(dm, nm)
+                    r = _add_scaled(dm, nm, -2.0 * dn)
+                    Pm = _take(hh.P, msel)
+                    org = _add_scaled(Pm, nm, 2e-4 * (1.0 + torch.sqrt(_dot(Pm, Pm))))
+                    _count(scene, "reflection_rays", msel.numel())
+                    dm0 = _take(dh, msel)
+                    t0 = tt[hsel][msel] * torch.sqrt(_dot(dm0, dm0))
+                    rc = _trace_shade(scene, lights, xf, org, r, msel.numel(), seconds, opaque,
+                                      pix, t0)
+                    mm = hh.mirror[msel]
+                    for i in range(3):
+                        c[i] = c[i].index_put((msel,), c[i][msel] * (1.0 - mm) + rc[i] * mm)
+            for i in range(3):
+                col[i][hsel] = c[i]
+        sky = _sky(scene, d)
+        col = [torch.where(hit, col[i], sky[i]) for i in range(3)]
+        if transl:
+            _count(scene, "translucent_rays", n)
+            t2, who2 = _nearest(scene, transl, xf, origin, d, n)
+            tsel = torch.nonzero(t2 < tt).squeeze(1)
+            if tsel.numel():
+                d2 = _take(d, tsel)
+                h2 = _surfaces(scene, xf, origin, d2, t2[tsel], who2[tsel], seconds, tsel.numel(),
+                               pix)
+                c2 = _shade(scene, lights, xf, h2, d2, tsel.numel(), False, scene.has("specular"))
+                a = h2.opacity
+                for i in range(3):
+                    col[i] = col[i].index_put((tsel,), col[i][tsel] * (1.0 - a) + c2[i] * a)
+        # resolve: box filter over the color samples, G-buffer from the pixel-centre sample
+        sl = slice(y0 * W, y1 * W)
+        cs = slice(centre * M, (centre + 1) * M)
+        for i in range(3):
+            acc = col[i][0:M].clone()
+            for s in range(1, n_color):
+                acc += col[i][s * M:(s + 1) * M]
+            color[i, sl] = acc * (float(scene.exposure) / n_color)
+        hf = hit.to(torch.float32)
+        acc = hf[0:M].clone()
+        for s in range(1, n_color):
+            acc += hf[s * M:(s + 1) * M]
+        cover[sl] = acc * (1.0 / n_color)
+        tc, wc = tt[cs], who[cs]
+        depth[sl] = tc
+        for i in range(3):
+            normal[i, sl] = h.n[i][cs]
+            albedo[i, sl] = h.albedo[i][cs]
+        rough[sl] = torch.where(wc >= 0, h.rough[cs], 1.0)
+        if prev is not None:
+            fcp, Mp, xfp, zrow = prev
+            qx = torch.zeros(M)
+            qy = torch.zeros(M)
+            qw = torch.ones(M)
+            pd = torch.full((M,), INF)
+            pl = _take(h.plocal, cs)
+            for k in range(len(scene.objects)):
+                sel = torch.nonzero(wc == k).squeeze(1)
+                if sel.numel() == 0:
+                    continue
+                P = xfp[k].to_world(_take(pl, sel))
+                cx, cy, cw = _project(Mp, P)
+                qx[sel], qy[sel], qw[sel] = cx, cy, cw
+                pd[sel] = -(zrow[0] * P[0] + zrow[1] * P[1] + zrow[2] * P[2] + zrow[3])
+            ssel = torch.nonzero(wc < 0).squeeze(1)
+            if ssel.numel():  # sky: a direction, moved by the camera rotation only
+                cx, cy, cw = _project(Mp, _take(_take(d, cs), ssel), 0.0)
+                qx[ssel], qy[ssel], qw[ssel] = cx, cy, cw
+            front = qw > 1e-9
+            inv = 1.0 / torch.clamp(qw, min=1e-9)
+            qx = (qx * inv + 1.0) * (0.5 * fcp.width)
+            qy = (1.0 - qy * inv) * (0.5 * fcp.height)
+            lim = 4.0 * (W + H)
+            cx0 = px[cs] - 0.0  # sample positions of the centre ray (jitter included)
+            cy0 = py[cs]
+            mv[0, sl] = torch.clamp(qx - cx0, -lim, lim)
+            mv[1, sl] = torch.clamp(qy - cy0, -lim, lim)
+            if want:
+                pdepth[sl] = pd
+                # is the surface point the first thing the previous camera sees there?
+                dp = _camera_rays(fcp, qx, qy)
+                _count(scene, "disocclusion_rays", M)
+                tp, wp = _nearest(scene, opaque, xfp, tuple(float(x) for x in fcp.position),
+                                  dp, M)
+                same = (wp == wc) & ((wc < 0) | (torch.abs(tp - pd) <= 1e-3 * pd + 1e-4))
+                onscreen = front & (qx >= 0) & (qx < fcp.width) & (qy >= 0) & (qy < fcp.height)
+                disocc[sl] = ~(same & onscreen)
+        if want:
+            oid[sl] = wc
+            e = torch.zeros(M, dtype=torch.bool)
+            for s in range(n_color):
+                e |= who[s * M:(s + 1) * M] != wc
+            edge[sl] = e
+    color = color.reshape(3, H, W)
+    if scene.has("particles"):
+        _particles(scene, color, fc, seconds)
+    if scene.has("hud"):
+        _hud(scene, color, fc)
+    frame = Frame(number=int(math.floor(t + 0.5)) if number is None else number,
+                  color=color, depth=depth.reshape(1, H, W), mv=mv.reshape(2, H, W),
+                  alpha=cover.reshape(1, H, W), normal=normal.reshape(3, H, W),
+                  albedo=albedo.reshape(3, H, W), roughness=rough.reshape(1, H, W),
+                  camera=fc.camera, header={}, time=t)
+    if want:
+        extras.update(object_id=oid.reshape(H, W), edge=edge.reshape(H, W))
+        if prev is not None:
+            extras.update(prev_depth=pdepth.reshape(H, W), disoccluded=disocc.reshape(H, W))
+        extras["camera"] = fc
+    return frame
+
+
+# ----------------------------------------------------------------------------- overlays
+
+def _particles(scene: Scene, color: torch.Tensor, fc: FrameCamera, seconds: float) -> None:
+    """Additive screen-space sprites (no depth, no motion vectors): sparks, snow, dust."""
+    p = scene.particles
+    cnt = p["count"]
+    if cnt == 0:
+        return
+    rng = np.random.default_rng(p["seed"])
+    start = rng.random((cnt, 2))
+    vel = np.asarray(p["velocity"])[None, :] + p["spread"] * rng.standard_normal((cnt, 2))
+    gain = 0.5 + 0.5 * rng.random(cnt)
+    _, H, W = color.shape
+    sig = max(p["size"] * H, 0.3)
+    rad = int(math.ceil(3 * sig))
+    for i in range(cnt):
+        x = (start[i, 0] * W + vel[i, 0] * H * seconds) % W
+        y = (start[i, 1] * H + vel[i, 1] * H * seconds) % H
+        for ox in (-W, 0, W):
+            for oy in (-H, 0, H):
+                cx, cy = x + ox, y + oy
+                x0, x1 = max(0, int(cx) - rad), min(W, int(cx) + rad + 1)
+                y0, y1 = max(0, int(cy) - rad), min(H, int(cy) + rad + 1)
+                if x0 >= x1 or y0 >= y1:
+                    continue
+                gx = torch.arange(x0, x1, dtype=torch.float32) + 0.5 - float(cx)
+                gy = torch.arange(y0, y1, dtype=torch.float32) + 0.5 - float(cy)
+                g = torch.exp(-(gy[:, None] ** 2 + gx[None, :] ** 2) * (0.5 / (sig * sig)))
+                for c in range(3):
+                    k = float(p["color"][c] * p["intensity"] * gain[i])
+                    color[c, y0:y1, x0:x1] += g * k
+
+
+DEFAULT_HUD = [  # (x, y, w, h) as fractions of the frame, color, opacity
+    ((0.04, 0.88, 0.30, 0.05), (0.05, 0.05, 0.05), 0.6),
+    ((0.045, 0.895, 0.21, 0.03), (0.2, 0.9, 0.25), 0.9),
+    ((0.78, 0.05, 0.18, 0.25), (0.02, 0.03, 0.05), 0.55),
+    ((0.49, 0.495, 0.02, 0.01), (1.0, 1.0, 1.0), 0.8),
+    ((0.4975, 0.48, 0.005, 0.04), (1.0, 1.0, 1.0), 0.8),
+]
+
+
+def _hud(scene: Scene, color: torch.Tensor, fc: FrameCamera) -> None:
+    """Static overlay composited over the nominal frame (no depth, no motion vectors);
+    coverage is the exact area of each rectangle inside each pixel."""
+    _, H, W = color.shape
+    b = fc.border
+    Wn, Hn = W - 2 * b, H - 2 * b
+    els = scene.hud["elements"] or DEFAULT_HUD
+    xs = torch.arange(W, dtype=torch.float32)
+    ys = torch.arange(H, dtype=torch.float32)
+    for rect, col, op in els:
+        x0, y0 = b + rect[0] * Wn, b + rect[1] * Hn
+        x1, y1 = x0 + rect[2] * Wn, y0 + rect[3] * Hn
+        cx = torch.clamp(torch.clamp(xs + 1, max=x1) - torch.clamp(xs, min=x0), 0.0, 1.0)
+        cy = torch.clamp(torch.clamp(ys + 1, max=y1) - torch.clamp(ys, min=y0), 0.0, 1.0)
+        a = cy[:, None] * cx[None, :] * float(op)
+        for c in range(3):
+            color[c] = color[c] * (1.0 - a) + float(col[c]) * a

@@ -1,0 +1,60 @@
+"""Shared test fixtures: small and generic.
+
+`tiny_scene(t)` renders frame t of a scene whose motion is known exactly (numpy only):
+a textured background panning +1 px/frame in x, a textured 8x8 square moving (+2, +1)
+px/frame in front of it, and sky in the top rows (depth +inf, static color). It returns
+the internal convention: color (3,H,W), depth (1,H,W), mv (2,H,W) toward t-1, mv_fwd
+(2,H,W) toward t+1, normal, albedo, roughness and ids (H,W: 0 sky, 1 background, 2 square).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+SKY_ROWS = 4
+BG_SPEED = (1, 0)
+FG_SPEED = (2, 1)
+FG_SIZE = 8
+
+
+def _tex(x, y, seed):
+    return (0.5 + 0.25 * np.sin(0.9 * x + seed) * np.cos(0.7 * y - seed)
+            + 0.2 * np.sin(0.37 * x * (1 + seed) + 0.53 * y))
+
+
+def render_scene(t: int, h: int = 24, w: int = 32) -> dict:
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    bx, by = x - BG_SPEED[0] * t, y - BG_SPEED[1] * t
+    color = np.stack([_tex(bx, by, s) for s in (0.1, 0.2, 0.3)])
+    depth = np.full((1, h, w), 10.0)
+    mv = np.stack([np.full((h, w), -BG_SPEED[0], float), np.full((h, w), -BG_SPEED[1], float)])
+    fwd = -mv.copy()
+    ids = np.ones((h, w), np.int32)
+    x0, y0 = 4 + FG_SPEED[0] * t, 6 + FG_SPEED[1] * t
+    fg = (x >= x0) & (x < x0 + FG_SIZE) & (y >= y0) & (y < y0 + FG_SIZE)
+    lx, ly = x - x0, y - y0
+    for c, s in enumerate((1.1, 1.7, 2.3)):
+        color[c] = np.where(fg, 2.0 * _tex(lx, ly, s) + 0.1, color[c])
+    depth[0][fg] = 2.0
+    mv[0][fg], mv[1][fg] = -FG_SPEED[0], -FG_SPEED[1]
+    fwd[0][fg], fwd[1][fg] = FG_SPEED[0], FG_SPEED[1]
+    ids[fg] = 2
+    sky = y < SKY_ROWS
+    for c in range(3):
+        color[c][sky] = (0.3 + 0.1 * c + 0.01 * x)[sky]
+    depth[0][sky] = np.inf
+    ids[sky] = 0
+    normal = np.zeros((3, h, w))
+    normal[2] = 1.0
+    normal[:, sky] = 0.0
+    albedo = np.clip(color * 0.5, 0, 1)
+    rough = np.where(fg, 0.2, 0.7)[None]
+    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    return {"color": f32(color), "depth": f32(depth), "mv": f32(mv), "mv_fwd": f32(fwd),
+            "normal": f32(normal), "albedo": f32(albedo), "roughness": f32(rough),
+            "ids": ids}
+
+
+@pytest.fixture
+def tiny_scene():
+    return render_scene
