@@ -232,12 +232,13 @@ def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
     import numpy as np
 
     from fgcli.ops import metrics as M
+    from fgcli.ops.color import srgb_oetf
 
     o = out.detach().float().cpu()
     g = gt.detach().float().cpu()
-    od, gd = M.srgb_oetf(o), M.srgb_oetf(g)
-    p = float(M.psnr(od, gd))
-    s = float(M.ssim(od, gd))
+    od, gd = srgb_oetf(o), srgb_oetf(g)  # display-referred, for the pooled masked MSE
+    p = float(M.psnr(o, g))
+    s = float(M.ssim(o, g))
     fl, fmap = M.flip_ldr(g, o, return_map=True)
     sc.psnr.append(p)
     sc.ssim.append(s)
@@ -286,7 +287,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     masks_cache: dict = {}
     worst: dict = {}
     bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
-               disable=not progress, leave=False)
+               disable=None if progress else True, leave=False)
     with torch.inference_mode():
         for task in tasks:
             gt = src.gt(task.target)

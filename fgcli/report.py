@@ -7,7 +7,7 @@ import os
 def _display(x):
     import numpy as np
 
-    from fgcli.ops.metrics import srgb_oetf
+    from fgcli.ops.color import srgb_oetf
 
     return np.clip(srgb_oetf(x.float()).permute(1, 2, 0).numpy(), 0, 1)
 

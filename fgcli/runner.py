@@ -109,7 +109,7 @@ def check_device(device: str) -> str:
 def _progress(total: int, desc: str, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="frame", disable=not enabled, file=sys.stderr,
+    return tqdm(total=total, desc=desc, unit="frame", disable=None if enabled else True, file=sys.stderr,
                 leave=False)
 
 
@@ -153,6 +153,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
                     "fgen:command": command, "fgen:pipeline_json": json.dumps(pinfo)}
     written, skipped_existing = 0, 0
+    out.check_all([out.path_for(on) for *_, on in copies] + [out.path_for(j[3]) for j in jobs])
     bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)
     with torch.inference_mode():
         for n, on in copies:

@@ -5,7 +5,7 @@ import sys
 
 import click
 
-from fgcli.io.options import input_options, output_options
+from fgcli.io.options import INPUT_KEYS, OUTPUT_KEYS, input_options, output_options
 
 
 def common(f):
@@ -20,6 +20,10 @@ def common(f):
     f = output_options(f)
     f = input_options(f)
     return f
+
+
+def split_kwargs(kw):
+    return ({k: kw[k] for k in INPUT_KEYS if k in kw}, {k: kw[k] for k in OUTPUT_KEYS if k in kw})
 
 
 def run(mode, in_dir, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,

@@ -1,6 +1,6 @@
 import click
 
-from fgcli.commands._generate import common, run
+from fgcli.commands._generate import common, run, split_kwargs
 
 
 @click.command("extrapolate")
@@ -15,7 +15,6 @@ from fgcli.commands._generate import common, run
 def cmd(in_dir, out_dir, alpha, count, emit, pipeline, sets, device, no_progress, json_out, **kw):
     """Generate frames past each rendered frame of IN_DIR, from that frame and its history only."""
     from fgcli.errors import UsageError
-    from fgcli.io.options import split_kwargs
     from fgcli.runner import parse_alphas
 
     if count < 1:

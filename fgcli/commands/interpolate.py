@@ -1,6 +1,6 @@
 import click
 
-from fgcli.commands._generate import common, run
+from fgcli.commands._generate import common, run, split_kwargs
 
 
 @click.command("interpolate")
@@ -14,7 +14,6 @@ from fgcli.commands._generate import common, run
 def cmd(in_dir, out_dir, factor, alpha, emit, pipeline, sets, device, no_progress, json_out, **kw):
     """Generate frames between rendered frames of IN_DIR into OUT_DIR."""
     from fgcli.errors import UsageError
-    from fgcli.io.options import split_kwargs
     from fgcli.runner import parse_alphas
 
     if factor is not None and alpha is not None:

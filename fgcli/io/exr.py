@@ -21,11 +21,9 @@ import numpy as np
 from fgcli.errors import InputError, OutputError
 
 # attributes that describe the file's structure, not its content: never carried over
-STRUCTURAL_ATTRIBUTES = {"compression", "name", "view", "type", "chunkCount", "version",
-                         "tiles", "multiView", "DateTime", "dataWindow", "displayWindow",
-                         "lineOrder", "channels"}
-COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24", "b44", "b44a", "dwaa", "dwab",
-                "htj2k")
+STRUCTURAL_ATTRIBUTES = {"compression", "type", "chunkCount", "version", "tiles",
+                         "DateTime", "dataWindow", "displayWindow", "lineOrder", "channels"}
+COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24", "b44", "b44a", "dwaa", "dwab")
 
 
 def _oiio():
@@ -375,6 +373,8 @@ def write_parts(path: str, parts: list[dict], compression: str = "zip",
         spec, data = _make_spec(p["channels"], p.get("types"), p.get("attributes"),
                                 p.get("attribute_types"), compression, tile,
                                 p.get("data_window"), p.get("display"))
+        for k in ("name", "view"):  # part structure: from the part dict, not attributes
+            spec.erase_attribute(k)
         if p.get("name") is not None:
             spec.attribute("name", p["name"])
         elif len(parts) > 1:

@@ -34,12 +34,16 @@ def frame_to_fgen_channels(frame: Frame, half: bool = True) -> tuple[dict, dict]
     return layouts.get("fgen").encode(frame, half)
 
 
+# a written frame is one single-part, single-view image
+_NOT_CARRIED = {"multiView", "name", "view"}
+
+
 def fgen_attributes(frame: Frame, extra: dict | None = None) -> dict:
     """The header of an output frame: the source frame's metadata (minus its camera),
     the frame's camera (fgen JSON + OpenEXR worldToCamera/worldToNDC), fgen:version and
     `extra` (fgen:* provenance, see fgcli.io.output.fgen_attributes)."""
     attrs = {k: v for k, v in (frame.header or {}).items()
-             if k not in cameras.CAMERA_ATTRIBUTES}
+             if k not in cameras.CAMERA_ATTRIBUTES and k not in _NOT_CARRIED}
     attrs.update(cameras.header_attributes(frame.camera))
     attrs["fgen:version"] = __version__
     attrs.update(extra or {})

@@ -173,33 +173,6 @@ def sample_nearest(img: torch.Tensor, flow: torch.Tensor) -> tuple[torch.Tensor,
     return one(img, flow)
 
 
-def chain_mv(mv_list) -> torch.Tensor:
-    """Compose backward motion vectors over several frames.
-
-    Args:
-        mv_list: sequence [mv_k, mv_{k-1}, ..., mv_{j+1}] newest first; each (2, H, W) or
-            (B, 2, H, W), pointing from its frame to the previous one (fgen convention).
-
-    Returns:
-        (2, H, W) vectors from frame k directly to frame j:
-        ``b(p) = mv_k(p) + mv_{k-1}(p + mv_k(p)) + ...``, each later vector fetched
-        bilinearly at the position reached so far. Off-screen positions are clamped to the
-        image (edge-replicated fetch) and chaining continues; the result is then an
-        extrapolation and callers that care should test ``p + b`` against the image
-        rectangle. A one-element list returns a copy of its vectors.
-    """
-    if isinstance(mv_list, torch.Tensor) or len(mv_list) == 0:
-        raise ValueError("mv_list: expected a non-empty list of (2, H, W) tensors")
-    mvs = [check_tensor(m, f"mv_list[{i}]", 2) for i, m in enumerate(mv_list)]
-    for i, m in enumerate(mvs[1:], 1):
-        check_same(mvs[0], "mv_list[0]", (m, f"mv_list[{i}]"))
-    total = sanitize_mv(mvs[0]).clone()
-    for m in mvs[1:]:
-        fetched, _ = backward_warp(sanitize_mv(m), total, mode="bilinear", border="clamp")
-        total = sanitize_mv(total + fetched)
-    return total
-
-
 def mv_warp_interp(c0: torch.Tensor, c1: torch.Tensor, mv1: torch.Tensor, alpha: float,
                    mode: str = "bilinear") -> torch.Tensor:
     """``mv-warp`` interpolation baseline: warp the temporally nearer frame by scaled MVs.

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fgcli.errors import InputError
+from fgcli.errors import InputError, UsageError
 from fgcli.synth.motion import CameraPath, Motion, euler_deg
 
 EFFECTS = ("shadows", "specular", "reflection", "translucency", "particles", "hud",
@@ -406,17 +406,21 @@ def _camera(tb: _Table, objects: list[Object]) -> CameraPath:
 def _parse(d: dict, file: str, name: str, size, fps, frames, spp) -> Scene:
     root = _Table(d, "", file)
     name = root.str("name", name)
-    w, h = (root.vec("size", 2, default=np.array([256.0, 144.0]), lo=1) if size is None
-            else (root.raw("size", None), np.asarray(size, float))[1])
+    # the file's values are checked even when overridden
+    w, h = root.vec("size", 2, default=np.array([256.0, 144.0]), lo=1)
     if w != int(w) or h != int(h):
         root.fail("size", "expected integer width and height")
-    fps_v = root.num("fps", 24.0, lo=1e-3) if fps is None else (root.raw("fps", None), float(fps))[1]
-    n = root.num("frames", 17, lo=1, integer=True) if frames is None else (
-        root.raw("frames", None), int(frames))[1]
-    spp_v = root.num("spp", 3, lo=1, hi=16, integer=True) if spp is None else (
-        root.raw("spp", None), int(spp))[1]
-    if fps_v <= 0 or n < 1 or spp_v < 1 or w < 1 or h < 1:
-        raise InputError("size, fps, frames and spp must be positive", file=file)
+    fps_v = root.num("fps", 24.0, lo=1e-3)
+    n = root.num("frames", 17, lo=1, integer=True)
+    spp_v = root.num("spp", 3, lo=1, hi=16, integer=True)
+    if size is not None:
+        w, h = size
+    fps_v = fps_v if fps is None else float(fps)
+    n = n if frames is None else int(frames)
+    spp_v = spp_v if spp is None else int(spp)
+    if not (fps_v > 0 and n >= 1 and 1 <= spp_v <= 16 and w >= 1 and h >= 1):
+        raise UsageError(f"bad override: size {w}x{h}, fps {fps_v}, frames {n}, spp {spp_v} "
+                         "(all must be positive, spp at most 16)")
     eff = root.raw("effects", [])
     if not isinstance(eff, list) or not all(isinstance(e, str) for e in eff):
         root.fail("effects", "expected a list of effect names")
@@ -505,7 +509,7 @@ def parse_size(text: str) -> tuple[int, int]:
         w, h = text.lower().split("x")
         w, h = int(w), int(h)
     except ValueError:
-        raise InputError(f"bad size '{text}' (expected WxH, e.g. 256x144)") from None
+        raise UsageError(f"bad size '{text}' (expected WxH, e.g. 256x144)") from None
     if w < 1 or h < 1:
-        raise InputError(f"bad size '{text}' (width and height must be positive)")
+        raise UsageError(f"bad size '{text}' (width and height must be positive)")
     return w, h

@@ -1,0 +1,152 @@
+"""Low-level EXR access: parts, tiles, data windows, mixed types, metadata, bad files."""
+from __future__ import annotations
+
+import os
+import stat
+
+import numpy as np
+import pytest
+
+from fgcli.errors import InputError, OutputError
+from fgcli.io import exr
+
+
+def planes(h=6, w=8, n=3, seed=0):
+    rng = np.random.default_rng(seed)
+    return [rng.random((h, w), dtype=np.float32) * 10 for _ in range(n)]
+
+
+def test_mixed_half_float_scanline(tmp_path):
+    r, g, z = planes()
+    p = str(tmp_path / "a.exr")
+    exr.write_exr(p, {"R": r, "G": g, "Z": z}, {"R": "half", "G": "half", "Z": "float"})
+    h = exr.read_header(p)
+    part = h.parts[0]
+    assert dict(zip(part.channels, part.formats)) == {"R": "half", "G": "half", "Z": "float"}
+    assert not part.tiled and part.full_data_window
+    got = exr.read_channels(p, [(0, "Z"), (0, "R")], h)
+    assert np.array_equal(got[(0, "Z")], z)  # float exact
+    assert np.allclose(got[(0, "R")], r, rtol=2 ** -10)  # half
+    assert got[(0, "R")].dtype == np.float32
+
+
+def test_tiled_with_data_window_padded_to_display(tmp_path):
+    r, g = planes(4, 5, 2)
+    p = str(tmp_path / "t.exr")
+    exr.write_exr(p, {"R": r, "G": g}, {"R": "float", "G": "float"}, tile=4,
+                  data_window=(2, 1, 5, 4), display=(8, 6))
+    part = exr.read_header(p).parts[0]
+    assert part.tiled and (part.width, part.height) == (8, 6)
+    assert (part.x, part.y, part.data_width, part.data_height) == (2, 1, 5, 4)
+    got = exr.read_channels(p, [(0, "G")], fill={(0, "G"): -1.0})[(0, "G")]
+    assert got.shape == (6, 8)
+    assert np.array_equal(got[1:5, 2:7], g)
+    assert (got[0] == -1).all() and (got[:, :2] == -1).all() and (got[:, 7] == -1).all()
+    mask = part.data_mask()
+    assert mask.sum() == 20 and mask[1, 2] and not mask[0, 2]
+
+
+def test_overscan_data_window_is_cropped(tmp_path):
+    (r,) = planes(8, 10, 1)
+    p = str(tmp_path / "o.exr")
+    exr.write_exr(p, {"R": r}, {"R": "float"}, data_window=(-1, -1, 10, 8), display=(8, 6))
+    got = exr.read_channels(p, [(0, "R")])[(0, "R")]
+    assert got.shape == (6, 8) and np.array_equal(got, r[1:7, 1:9])
+
+
+def test_multi_part(tmp_path):
+    a, b, c = planes()
+    p = str(tmp_path / "m.exr")
+    exr.write_parts(p, [dict(channels={"R": a, "G": b}, name="rgba", view="left",
+                             attributes={"owner": "me"}),
+                        dict(channels={"Z": c}, types={"Z": "float"}, name="depth")])
+    h = exr.read_header(p)
+    assert [x.name for x in h.parts] == ["rgba", "depth"]
+    assert h.parts[0].view == "left" and h.parts[1].view is None
+    assert [(i, n) for i, n, _ in h.all_channels()] == [(0, "G"), (0, "R"), (1, "Z")] or \
+        [(i, n) for i, n, _ in h.all_channels()] == [(0, "R"), (0, "G"), (1, "Z")]
+    got = exr.read_channels(p, [(1, "Z"), (0, "G")], h)
+    assert np.array_equal(got[(1, "Z")], c)
+    assert np.allclose(got[(0, "G")], b, rtol=2 ** -10)
+
+
+def test_attribute_types_carried(tmp_path):
+    (r,) = planes(n=1)
+    p = str(tmp_path / "a.exr")
+    exr.write_exr(p, {"R": r}, None, {"screenWindowCenter": [0.5, 0.25], "owner": "studio",
+                                      "fgen:alpha": 0.5, "frameCount": 3,
+                                      "smpte:TimeCode": [1, 2], "nested": {"a": 1},
+                                      "m": np.eye(4).ravel().tolist()},
+                  attribute_types={"smpte:TimeCode": "timecode"})
+    part = exr.read_header(p).parts[0]
+    a, t = part.attributes, part.attr_types
+    assert t["screenWindowCenter"] == "float2" and a["screenWindowCenter"] == [0.5, 0.25]
+    assert t["smpte:TimeCode"] == "timecode" and t["m"] == "matrix"
+    assert a["fgen:alpha"] == 0.5 and a["frameCount"] == 3
+    assert a["nested"] == '{"a": 1}'
+    # and again through the recorded types: identical
+    q = str(tmp_path / "b.exr")
+    exr.write_exr(q, {"R": r}, None, a, attribute_types=t)
+    part2 = exr.read_header(q).parts[0]
+    for k in ("screenWindowCenter", "smpte:TimeCode", "m", "fgen:alpha"):
+        assert part2.attributes[k] == a[k] and part2.attr_types[k] == t[k]
+
+
+def test_atomic_write_leaves_no_temp_and_plain_permissions(tmp_path):
+    (r,) = planes(n=1)
+    p = str(tmp_path / "a.exr")
+    exr.write_exr(p, {"R": r})
+    assert os.listdir(tmp_path) == ["a.exr"]
+    mode = stat.S_IMODE(os.stat(p).st_mode)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert mode == 0o666 & ~umask
+
+
+def test_failed_write_cleans_up(tmp_path):
+    (r,) = planes(n=1)
+    (tmp_path / "a.exr").mkdir()  # the final rename cannot replace a folder
+    with pytest.raises(OutputError, match="cannot rename"):
+        exr.write_exr(str(tmp_path / "a.exr"), {"R": r})
+    assert os.listdir(tmp_path) == ["a.exr"]  # no temporary left behind
+    with pytest.raises(OutputError, match="nothing to write"):
+        exr.write_exr(str(tmp_path / "b.exr"), {})
+
+
+@pytest.mark.parametrize("comp", ["zip", "piz", "none", "rle", "zips", "pxr24", "b44",
+                                  "dwaa"])
+def test_compressions(tmp_path, comp):
+    (r,) = planes(n=1)
+    p = str(tmp_path / "c.exr")
+    exr.write_exr(p, {"R": r}, {"R": "float"}, compression=comp)
+    assert exr.read_header(p).attributes["compression"].startswith(comp)
+    got = exr.read_channels(p, [(0, "R")])[(0, "R")]
+    if comp in ("zip", "piz", "none", "rle", "zips"):
+        assert np.array_equal(got, r)  # lossless
+    else:
+        assert np.allclose(got, r, rtol=0.05, atol=0.05)
+
+
+def test_not_exr_and_truncated(tmp_path):
+    bad = tmp_path / "x.exr"
+    bad.write_bytes(b"P6\n2 2\n255\n" + bytes(12))
+    with pytest.raises(InputError, match="not an OpenEXR file") as e:
+        exr.read_header(str(bad))
+    assert str(bad) in e.value.message
+    r, g, z = planes(64, 64)
+    p = str(tmp_path / "full.exr")
+    exr.write_exr(p, {"R": r, "G": g, "Z": z}, compression="none")
+    data = open(p, "rb").read()
+    half = tmp_path / "half.exr"
+    half.write_bytes(data[: len(data) // 2])
+    h = exr.read_header(str(half))  # header intact
+    with pytest.raises(InputError, match="truncated or corrupt"):
+        exr.read_channels(str(half), [(0, "R")], h)
+    short = tmp_path / "short.exr"
+    short.write_bytes(data[:60])
+    with pytest.raises(InputError, match="truncated or corrupt header"):
+        exr.read_header(str(short))
+    with pytest.raises(InputError, match="file not found"):
+        exr.read_header(str(tmp_path / "none.exr"))
+    with pytest.raises(InputError, match="missing channel"):
+        exr.read_channels(p, [(0, "Q")])
