@@ -32,6 +32,13 @@ class FgenError(click.ClickException):
         prefix = (", ".join(parts) + ": ") if parts else ""
         super().__init__(prefix + message)
         self.file, self.frame, self.channel = file, frame, channel
+        self.detail = message  # the message without the file/frame/channel prefix
+
+    def with_frame(self, frame: int) -> "FgenError":
+        """The same error naming `frame` (unchanged when it already names one)."""
+        if self.frame is not None:
+            return self
+        return type(self)(self.detail, file=self.file, frame=frame, channel=self.channel)
 
 
 class InputError(FgenError):

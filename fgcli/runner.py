@@ -76,16 +76,18 @@ class FrameCache:
         self.frames: dict[int, Frame] = {}
 
     def get(self, n: int) -> Frame:
-        if n not in self.frames:
-            t0 = time.perf_counter()
-            f = self.reader.read(n)
-            self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
-            if self.device != "cpu":
-                f = f.to(self.device)
-            self.frames[n] = f
-            while len(self.frames) > self.keep:
-                self.frames.pop(min(self.frames))
-        return self.frames[n]
+        if n in self.frames:
+            self.frames[n] = self.frames.pop(n)  # most recently used last
+            return self.frames[n]
+        t0 = time.perf_counter()
+        f = self.reader.read(n)
+        self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
+        if self.device != "cpu":
+            f = f.to(self.device)
+        self.frames[n] = f
+        while len(self.frames) > self.keep:
+            self.frames.pop(next(iter(self.frames)))  # least recently used
+        return f
 
 
 def device_sync(device: str):

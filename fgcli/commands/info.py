@@ -37,6 +37,7 @@ def _channel_key(header, part, ch) -> str:
 def scan(reader) -> dict:
     """Count NaN/Inf per channel over every frame: {channel: {"count": n, "frames": [...]}}
     (depth channels: NaN and -Inf only; +Inf is sky)."""
+    from fgcli.errors import InputError
     from fgcli.io import exr
 
     depth_names = {n for f, ns in reader.info.names.items() if f == "depth" for n in ns}
@@ -46,7 +47,10 @@ def scan(reader) -> dict:
         path = reader.path(n)
         header = reader._header(n)
         refs = [(p.index, c) for p in header.parts for c in p.channels]
-        arrays = exr.read_channels(path, refs, header)
+        try:
+            arrays = exr.read_channels(path, refs, header)
+        except InputError as e:
+            raise e.with_frame(n) from None
         for (pi, c), a in arrays.items():
             key = _channel_key(header, header.parts[pi], c)
             if (pi, c) in depth_refs:

@@ -38,7 +38,10 @@ class SequenceReader:
         self.disk_step = sequence.Sequence(self.folder, "", 0, self.all_files).step
         self.numbers = self.seq.frames
         first = self.seq.files[self.numbers[0]]
-        self.header0 = exr.read_header(first)
+        try:
+            self.header0 = exr.read_header(first)
+        except InputError as e:
+            raise e.with_frame(self.numbers[0]) from None
         self.layout = layouts.resolve(layout, self.header0)
         self.info = self.layout.describe(self.header0, view)
         self.view = self.info.view
@@ -90,7 +93,10 @@ class SequenceReader:
     # -- reading --------------------------------------------------------------------------
     def _header(self, n: int, path: str | None = None) -> exr.Header:
         path = path or self.seq.files[n]
-        header = exr.read_header(path)
+        try:
+            header = exr.read_header(path)
+        except InputError as e:
+            raise e.with_frame(n) from None
         if (header.width, header.height) != (self.width, self.height):
             raise InputError(f"frame size {header.width}x{header.height} differs from the "
                              f"sequence's {self.width}x{self.height} (frame "
@@ -102,10 +108,14 @@ class SequenceReader:
             raise InputError("frame not in sequence", file=self.folder, frame=n)
         header = self._header(n)
         optional = self.optional | ({"depth"} if self._derive else set())
-        raw = self.layout.read_raw(header, n, view=self.view, fields=self.fields,
-                                   nonfinite=self.nonfinite, optional=optional)
+        try:
+            raw = self.layout.read_raw(header, n, view=self.view, fields=self.fields,
+                                       nonfinite=self.nonfinite, optional=optional)
+            if self._derive:
+                self._derive_mv(raw)
+        except InputError as e:
+            raise e.with_frame(n) from None
         if self._derive:
-            self._derive_mv(raw)
             if self.fields is not None and "depth" not in self.fields | self.optional:
                 raw.helpers.add("depth")
         if raw.camera is None and n in self.sidecar:
@@ -143,13 +153,23 @@ class SequenceReader:
                 "mv_fwd" not in self.optional:
             raw.helpers.add("mv_fwd")
 
+    def nonfinite_summary(self) -> str | None:
+        """One line naming the fields, counts and frames where NaN/Inf were replaced."""
+        if not self.nonfinite:
+            return None
+        parts, all_frames = [], set()
+        for fld, items in self.nonfinite.items():
+            frames = sorted({n for n, _ in items})
+            all_frames.update(frames)
+            count = sum(c for _, c in items)
+            what = "+inf" if fld == "depth" else "0"
+            parts.append(f"{fld}: {count} -> {what} (frames {sequence._fmt(frames)})")
+        return (f"{self.folder}: NaN/Inf values replaced with finite values in frames "
+                f"{sequence._fmt(sorted(all_frames))}; " + "; ".join(parts))
+
     def warn_nonfinite(self) -> None:
         """One warning per sequence naming the frames where NaN/Inf were replaced."""
-        if self.nonfinite and not self._warned:
+        msg = self.nonfinite_summary()
+        if msg and not self._warned:
             self._warned = True
-            for fld, items in self.nonfinite.items():
-                frames = sorted({n for n, _ in items})
-                count = sum(c for _, c in items)
-                what = "+inf (sky)" if fld == "depth" else "0"
-                print(f"warning: {self.folder}: {count} NaN/Inf values in {fld} replaced "
-                      f"with {what}, frames {sequence._fmt(frames)}", file=sys.stderr)
+            print(f"warning: {msg}", file=sys.stderr)

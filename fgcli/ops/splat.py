@@ -162,7 +162,8 @@ def _fetch_nearest(field, px, py):
     return out, inside
 
 
-def _splat_frame(depth1, mv1, mv0, alpha, model, mode, mv0_fetch):
+def _splat_frame(depth1, mv1, mv0, alpha, model, mode, mv0_fetch, depth0=None,
+                 depth0_tol=0.05):
     h, w = depth1.shape[-2:]
     n = h * w
     dev = depth1.device
@@ -180,7 +181,14 @@ def _splat_frame(depth1, mv1, mv0, alpha, model, mode, mv0_fetch):
             from fgcli.ops.warp import backward_warp
             b, inside = backward_warp(m0, a, mode="bilinear", border="clamp")
             inside = inside[0]
-        b = torch.where(inside[None], b, a)  # frame-0 position off-screen: linear motion
+        use_b = inside
+        if depth0 is not None:  # b must belong to the same surface: depths agree
+            d0s, _ = _fetch_nearest(sanitize_depth(depth0), px, py)
+            d1s = d[0]
+            d0s = d0s[0]
+            use_b = use_b & ((d0s == d1s) | ((d0s - d1s).abs_() <= torch.minimum(d0s, d1s)
+                                                                  .mul_(depth0_tol)))
+        b = torch.where(use_b[None], b, a)  # frame-0 position off-screen: linear motion
         disp = a * ca
         disp.add_(b, alpha=cb)
     else:
@@ -220,7 +228,8 @@ def _splat_frame(depth1, mv1, mv0, alpha, model, mode, mv0_fetch):
 
 def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | None,
                  alpha: float, model: str = "quadratic", mode: str = "interp",
-                 mv0_fetch: str = "nearest") -> SplatResult:
+                 mv0_fetch: str = "nearest", depth0: torch.Tensor | None = None,
+                 depth0_tol_rel: float = 0.05) -> SplatResult:
     """Forward-splat frame 1's motion to the generated time (Mob-FGSR section 3.3).
 
     For every source pixel p1 of frame 1, with a = mv1(p1) and b = mv0(p1 + a) (frame 0's
@@ -232,7 +241,11 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
       * extrap, time 1 + alpha (alpha >= 0):
         quadratic ``p = p1 - (alpha(3+alpha)/2) a + (alpha(1+alpha)/2) b``,
         linear ``p = p1 - alpha a``.
-    With mv0 None the linear model is used. The source writes into the target pixel whose
+    With mv0 None the linear model is used. b read from frame 0 may belong to another
+    surface (the one that covered p1's surface in frame 0); pass ``depth0`` (frame 0's
+    depth, an fgen extension, off by default as in the paper) to use b only where frame
+    0's depth at p1 + a agrees with depth1(p1) within ``depth0_tol_rel`` (else linear).
+    The source writes into the target pixel whose
     centre is nearest to p_t; conflicts resolve by an atomic min (scatter_reduce 'amin') of
     the int64 key ``float32_bits(depth) << 32 | source_index``: the nearest surface wins,
     ties go to the lowest source index. Sources landing off-screen are dropped.
@@ -241,6 +254,7 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
         depth1: (1, H, W) frame-1 depth (usually nearest-depth dilated).
         mv1: (2, H, W) frame-1 vectors (usually dilated with the depth).
         mv0: (2, H, W) frame-0 vectors, or None.
+        depth0: (1, H, W) frame-0 depth or None (see above).
         alpha: see above. model: 'quadratic' | 'linear'. mode: 'interp' | 'extrap'.
         (All tensors may carry a leading batch dim B, all or none.)
 
@@ -255,7 +269,10 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     mv1 = check_tensor(mv1, "mv1", 2)
     if mv0 is not None:
         mv0 = check_tensor(mv0, "mv0", 2)
-    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"))
+    if depth0 is not None:
+        depth0 = check_tensor(depth0, "depth0", 1)
+    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"), (depth0, "depth0"))
+    tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
     check_choice(model, "model", ("linear", "quadratic"))
     check_choice(mode, "mode", ("interp", "extrap"))
     check_choice(mv0_fetch, "mv0_fetch", ("nearest", "bilinear"))
@@ -265,8 +282,9 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     if depth1.dim() == 4:
         return SplatResult.stack([
             _splat_frame(depth1[i], mv1[i], None if mv0 is None else mv0[i], a, model, mode,
-                         mv0_fetch) for i in range(depth1.shape[0])])
-    return _splat_frame(depth1, mv1, mv0, a, model, mode, mv0_fetch)
+                         mv0_fetch, None if depth0 is None else depth0[i], tol)
+            for i in range(depth1.shape[0])])
+    return _splat_frame(depth1, mv1, mv0, a, model, mode, mv0_fetch, depth0, tol)
 
 
 def generated_mv(result: SplatResult) -> torch.Tensor:

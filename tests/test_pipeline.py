@@ -1,0 +1,197 @@
+"""Pipeline files, registry, overrides/variants, the runner and the generate commands."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from conftest import render_scene
+from fgcli import pipeline as pl
+from fgcli.cli import cli
+from fgcli.errors import UsageError
+from fgcli.frame import Frame
+from fgcli.io.frames import read_frame, write_frame
+from fgcli.stages.base import REGISTRY, load_all
+
+
+def _frame(t, h=24, w=32, scale=1.0):
+    d = render_scene(t, h, w)
+    return Frame(number=t, color=torch.from_numpy(d["color"]), depth=torch.from_numpy(d["depth"]),
+                 mv=torch.from_numpy(d["mv"]) * scale)
+
+
+@pytest.fixture
+def half_rate(tmp_path):
+    """Input at half rate (frames 0,2,..,8; MVs spanning 2 steps) and the full-rate sequence."""
+    inp, full = tmp_path / "in", tmp_path / "full"
+    inp.mkdir(), full.mkdir()
+    for t in range(9):
+        write_frame(str(full / f"s.{t:04d}.exr"), _frame(t))
+        if t % 2 == 0:
+            write_frame(str(inp / f"s.{t:04d}.exr"), _frame(t, scale=2.0))
+    return inp, full
+
+
+def test_every_pipeline_file_loads_and_validates():
+    names = pl.available()
+    assert {"mob-fgsr", "repeat", "blend", "mv-warp"} <= set(names)
+    for n in names:
+        p = pl.load(n)
+        for m in p.modes:
+            assert p.build(m)
+
+
+def test_unknown_stage_and_option_name_the_file_and_line(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('name = "bad"\nmodes = ["interp"]\n\n[[stage]]\nuse = "splat"\nmotoin = "linear"\n')
+    with pytest.raises(UsageError) as e:
+        pl.load_pipeline_file(str(f))
+    assert f"{f}:6" in str(e.value) and "motoin" in str(e.value)
+    f.write_text('name = "bad"\n[[stage]]\nuse = "splat"\n[[stage]]\nuse = "nope"\n')
+    with pytest.raises(UsageError) as e:
+        pl.load_pipeline_file(str(f))
+    assert f"{f}:4" in str(e.value) and "nope" in str(e.value)
+    f.write_text('name = "bad"\n[[stage]]\nuse = "splat"\nmotion = "cubic"\n')
+    with pytest.raises(UsageError, match="one of"):
+        pl.load_pipeline_file(str(f))
+
+
+def test_overrides_and_variants():
+    p = pl.load("mob-fgsr:motion=linear,gap_fill=off")
+    assert p.label == "mob-fgsr:motion=linear,gap_fill=off"
+    d = pl.describe(p)
+    st = {s["id"]: s for s in d["stages"]}
+    assert st["splat"]["options"]["motion"] == "linear"
+    assert st["gap_fill"]["enabled"] is False
+    assert "gap_fill" not in [s.id for s, _ in p.build("interp")]
+    p2 = pl.load("mob-fgsr").with_overrides(["warp.filter=catmull-rom"])
+    assert [stage for s, stage in p2.build("interp") if s.id == "warp"][0].filter == "catmull-rom"
+    with pytest.raises(UsageError, match="ambiguous"):
+        pl.load("mob-fgsr:depth_threshold=0.1")  # gap_fill and extrap_fill both have it
+    with pytest.raises(UsageError):
+        pl.load("mob-fgsr:warp.filter=lanczos")
+    with pytest.raises(UsageError):
+        pl.load("no-such-pipeline")
+
+
+def test_every_stage_has_an_option_table_and_declared_io():
+    reg = load_all()
+    assert {"dilate", "splat", "gap_fill", "extrap_fill", "warp", "blend", "motion_out",
+            "repeat", "crossfade", "mv_warp"} <= set(reg)
+    for cls in reg.values():
+        assert cls.help and cls.outputs
+        for o in cls.options:
+            assert o.help and o.parse(o.default) == o.default
+
+
+def test_zero_motion_skips_splat_and_returns_the_input_exactly():
+    f = _frame(0, scale=0.0)
+    f1 = f.replace(number=1)
+    p = pl.load("mob-fgsr")
+    tm = pl.Timings()
+    from fgcli.runner import make_ctx
+
+    ctx = make_ctx(f, f1, 0.5, "interp")
+    ctx = pl.run_stages(p.build("interp"), ctx, tm, label="x")
+    assert torch.equal(ctx["color"], f.color)
+    skipped = {s for _, s, _ in tm.skipped}
+    assert {"dilate", "splat", "gap_fill", "warp"} <= skipped
+    assert all(why for _, _, why in tm.skipped)
+
+
+def test_interpolate_cli_writes_frames_with_depth_mv_and_run_json(half_rate, tmp_path):
+    inp, _ = half_rate
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["interpolate", str(inp), str(out), "--pipeline", "mob-fgsr",
+                                 "--factor", "2", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    names = sorted(os.listdir(out))
+    assert names == ["fgen-run.json", "s.0001.exr", "s.0003.exr", "s.0005.exr", "s.0007.exr"]
+    f = read_frame(str(out / "s.0003.exr"), 3)
+    assert f.depth is not None and f.mv is not None and torch.isfinite(f.color).all()
+    run = json.loads((out / "fgen-run.json").read_text())
+    assert run["pipeline"]["name"] == "mob-fgsr" and run["written"] == 4
+    assert set(run["timings"]["stages"]) >= {"splat", "warp", "blend"}
+    # the generated frame is close to the true in-between frame
+    gt = _frame(3)
+    err = (f.color - gt.color).abs()[:, :, 6:-6].mean()
+    assert err < 0.05
+    # refuse to overwrite, then resume
+    r = CliRunner().invoke(cli, ["interpolate", str(inp), str(out), "--factor", "2", "--no-progress"])
+    assert r.exit_code == 3 and "--overwrite" in r.output
+    os.remove(out / "s.0005.exr")
+    r = CliRunner().invoke(cli, ["interpolate", str(inp), str(out), "--factor", "2", "--resume",
+                                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    run = json.loads((out / "fgen-run.json").read_text())
+    assert run["written"] == 1 and run["skipped_existing"] == 3
+
+
+def test_interpolate_emit_all_and_alpha_list_renumber(half_rate, tmp_path):
+    inp, _ = half_rate
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli, ["interpolate", str(inp), str(out), "--alpha", "0.25,0.5,0.75",
+                                 "--emit", "all", "--pipeline", "blend", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    exrs = sorted(n for n in os.listdir(out) if n.endswith(".exr"))
+    # input step 2, alphas in quarters: timeline scaled by 2 -> 0..16 all present
+    assert exrs == [f"s.{n:04d}.exr" for n in range(0, 17)]
+
+
+def test_extrapolate_cli_and_refusals(half_rate, tmp_path):
+    inp, _ = half_rate
+    out = tmp_path / "x"
+    r = CliRunner().invoke(cli, ["extrapolate", str(inp), str(out), "--alpha", "0.5",
+                                 "--pipeline", "mob-fgsr", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert sorted(n for n in os.listdir(out) if n.endswith(".exr")) == [
+        f"s.{n:04d}.exr" for n in (1, 3, 5, 7, 9)]
+    r = CliRunner().invoke(cli, ["extrapolate", str(inp), str(inp), "--no-progress"])
+    assert r.exit_code == 3  # refuses the input folder
+    r = CliRunner().invoke(cli, ["interpolate", str(inp), str(tmp_path / "y"), "--pipeline",
+                                 "blend:crossfade.nope=1"])
+    assert r.exit_code == 2
+
+
+def test_eval_factor_json_and_ranking(half_rate, tmp_path):
+    _, full = half_rate
+    js = tmp_path / "e.json"
+    r = CliRunner().invoke(cli, ["eval", str(full), "--factor", "2", "--pipeline", "all",
+                                 "--variant", "mob-fgsr:motion=linear", "--json", str(js),
+                                 "--no-progress", "--no-hdr-flip"])
+    assert r.exit_code == 0, r.output
+    assert "| mob-fgsr |" in r.output
+    res = json.loads(js.read_text())["pipelines"]
+    for name in ("mob-fgsr", "mob-fgsr:motion=linear", "mv-warp", "blend", "repeat"):
+        for k in ("psnr", "ssim", "flip", "psnr_disoccluded", "psnr_moving", "ms_per_frame",
+                  "stages"):
+            assert k in res[name]
+    assert res["mob-fgsr"]["psnr"] > res["mv-warp"]["psnr"] > res["blend"]["psnr"]
+    assert res["mob-fgsr"]["flip"] < res["mv-warp"]["flip"] < res["blend"]["flip"]
+
+
+def test_factor_and_gt_give_the_pipeline_the_same_inputs(half_rate):
+    """Chained MVs of the held-out path match what a half-rate renderer writes."""
+    from fgcli.evaluate import GTSource, HeldOutSource
+    from fgcli.io.reader import SequenceReader
+
+    inp, full = half_rate
+    held = HeldOutSource(SequenceReader(str(full)), 2)
+    gt = GTSource(SequenceReader(str(inp)), SequenceReader(str(full)))
+    assert held.inputs == gt.inputs == [0, 2, 4, 6, 8]
+    for n in held.inputs[1:]:
+        a, b = held.input(n), gt.input(n)
+        assert torch.equal(a.color, b.color)
+        # away from the moving square's borders (disocclusions) the vectors agree
+        ids = torch.from_numpy(render_scene(n, 24, 32)["ids"]).float()[None, None]
+        edge = (torch.nn.functional.max_pool2d(ids, 9, 1, 4)
+                != -torch.nn.functional.max_pool2d(-ids, 9, 1, 4))[0]
+        away = ~edge
+        assert away.sum() > 100
+        assert torch.allclose(a.mv[:, away[0]], b.mv[:, away[0]], atol=1e-4)
