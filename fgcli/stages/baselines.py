@@ -7,9 +7,11 @@ from fgcli.stages.base import Option, Stage, register
 def _scaled_mv(ctx):
     """Generated-frame MVs under a static-field, linear-motion assumption: frame 1's vectors
     scaled to the time since the previous output frame."""
+    from fgcli.ops import sanitize_mv
+
     a = ctx["alpha"]
     prev = float(ctx.get("prev_time") or 0.0)
-    return ctx["mv1"] * (a - prev)
+    return sanitize_mv(ctx["mv1"]) * (a - prev)
 
 
 @register
@@ -32,8 +34,10 @@ class Repeat(Stage):
         # content jumps to frame 1 at the first output after alpha 0.5 (interp): its vectors
         # then span the whole interval; otherwise the output repeats the previous content
         jump = ctx["mode"] == "interp" and a > 0.5 >= prev
-        mv = ctx["mv1"].clone() if jump else torch.zeros_like(ctx["mv1"])
-        return {"color": color.clone(), "depth": depth.clone(), "mv": mv}
+        from fgcli.ops import sanitize_mv, sanitize_values
+
+        mv = sanitize_mv(ctx["mv1"]) if jump else torch.zeros_like(ctx["mv1"])
+        return {"color": sanitize_values(color), "depth": depth.clone(), "mv": mv}
 
 
 @register
@@ -49,8 +53,11 @@ class CrossFade(Stage):
 
         from fgcli.ops import blend_linear
 
+        from fgcli.ops import sanitize_depth
+
         return {"color": blend_linear(ctx["color0"], ctx["color1"], ctx["alpha"]),
-                "depth": torch.minimum(ctx["depth0"], ctx["depth1"]), "mv": _scaled_mv(ctx)}
+                "depth": torch.minimum(sanitize_depth(ctx["depth0"]), sanitize_depth(ctx["depth1"])),
+                "mv": _scaled_mv(ctx)}
 
 
 @register
@@ -86,5 +93,5 @@ class MVWarp(Stage):
         else:
             color = mv_warp_extrap(ctx["color1"], mv1, a, self.filter)
             depth, _ = sample_nearest(ctx["depth1"], mv1 * a)
-        mv = _scaled_mv(ctx) if ctx["mode"] == "interp" else mv1 * (a - float(ctx.get("prev_time") or 0.0))
+        mv = _scaled_mv(ctx)
         return {"color": color, "depth": depth, "mv": mv}
