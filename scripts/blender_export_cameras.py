@@ -2,7 +2,8 @@
 
 Run inside Blender (no add-on needed):
 
-    blender -b shot.blend --python scripts/blender_export_cameras.py -- OUT_DIR [--start N] [--end M] [--step S]
+    blender -b shot.blend --python scripts/blender_export_cameras.py -- OUT_DIR \
+        [--start N] [--end M] [--step S]
 
 OUT_DIR is the folder holding the rendered EXR sequence (default: the folder of the scene's
 output path). One entry per frame, in the format fgen reads (docs/conventions.md):

@@ -92,6 +92,21 @@ def test_attribute_types_carried(tmp_path):
         assert part2.attributes[k] == a[k] and part2.attr_types[k] == t[k]
 
 
+def test_standard_attribute_types_without_type_table(tmp_path):
+    """A generated frame's header may carry values without their types: standard OpenEXR
+    attributes still get the right ones."""
+    (r,) = planes(n=1)
+    p = str(tmp_path / "s.exr")
+    chroma = [0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329]
+    exr.write_exr(p, {"R": r}, None, {"chromaticities": chroma, "smpte:TimeCode": [1, 2],
+                                      "framesPerSecond": [24, 1], "PixelAspectRatio": 1})
+    part = exr.read_header(p).parts[0]
+    t = part.attr_types
+    assert t["chromaticities"] == "float[8]" and t["smpte:TimeCode"] == "timecode"
+    assert t["framesPerSecond"] == "rational" and t["PixelAspectRatio"] == "float"
+    assert np.allclose(part.attributes["chromaticities"], chroma)
+
+
 def test_atomic_write_leaves_no_temp_and_plain_permissions(tmp_path):
     (r,) = planes(n=1)
     p = str(tmp_path / "a.exr")

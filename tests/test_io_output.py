@@ -36,7 +36,7 @@ def test_creates_folder_and_names(tmp_path):
     assert os.path.isdir(out.path)
     assert out.path_for(7) == str(tmp_path / "a" / "b" / "shot.0007.exr")
     assert out.path_for(-3).endswith("shot.-0003.exr")
-    assert out.path_for("x.1001.5") == str(tmp_path / "a" / "b" / "x.1001.5")
+    assert out.path_for("x.1001.exr") == str(tmp_path / "a" / "b" / "x.1001.exr")
     assert out.path_for("mid") == str(tmp_path / "a" / "b" / "mid.exr")
 
 

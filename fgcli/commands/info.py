@@ -130,7 +130,8 @@ def _text(d: dict) -> str:
             where += (f", view {c['view']}]" if c.get("view") else "]")
         lines.append(f"  {c['name']:<24} {c['type']}{where}")
     for n in d["notes"]:
-        lines.append(f"note: {n}")
+        if not n.startswith("view '"):  # already on the view line
+            lines.append(f"note: {n}")
     if "nonfinite" in d:
         bad = {k: v for k, v in d["nonfinite"].items() if v["count"]}
         if not bad:

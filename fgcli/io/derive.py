@@ -83,17 +83,19 @@ def backward_from_forward(fwd_prev: np.ndarray, depth_prev: np.ndarray | None = 
     ok &= (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
     src = np.flatnonzero(ok)
     tgt = ty[src] * w + tx[src]
+    # z-buffer: per target pixel the nearest depth, then the lowest source index among
+    # equally near sources (deterministic ties)
     if depth_prev is not None:
         d = np.asarray(depth_prev, dtype=np.float32).reshape(-1)[src]
         d = np.where(np.isnan(d), np.inf, d)
-        order = np.lexsort((d, tgt))  # by target, then nearest first
-    else:
-        order = np.argsort(tgt, kind="stable")
-    tgt_s = tgt[order]
-    first = np.ones(len(tgt_s), bool)
-    first[1:] = tgt_s[1:] != tgt_s[:-1]
-    win_src = src[order][first]
-    win_tgt = tgt_s[first]
+        zbuf = np.full(h * w, np.inf, np.float32)
+        np.minimum.at(zbuf, tgt, d)
+        near = d <= zbuf[tgt]
+        src, tgt = src[near], tgt[near]
+    first = np.full(h * w, h * w, np.int64)
+    np.minimum.at(first, tgt, src)
+    win = first[tgt] == src
+    win_src, win_tgt = src[win], tgt[win]
     mv = np.zeros((2, h * w), np.float32)
     mv[0, win_tgt] = -fxs[win_src]
     mv[1, win_tgt] = -fys[win_src]

@@ -229,6 +229,18 @@ def read_channels(path: str, wanted: list[tuple[int, str]], header: Header | Non
     return out
 
 
+# OpenEXR standard attributes whose type cannot be told from a plain value
+STANDARD_TYPES = {"chromaticities": "float[8]", "smpte:TimeCode": "timecode",
+                  "smpte:KeyCode": "keycode", "framesPerSecond": "rational2i",
+                  "worldToCamera": "matrix", "worldToNDC": "matrix",
+                  "screenWindowCenter": "float2", "adoptedNeutral": "float2",
+                  "screenWindowWidth": "float", "PixelAspectRatio": "float",
+                  "whiteLuminance": "float", "xDensity": "float", "utcOffset": "float",
+                  "expTime": "float", "aperture": "float", "isoSpeed": "float",
+                  "focus": "float", "longitude": "float", "latitude": "float",
+                  "altitude": "float"}
+
+
 def _infer_type(value) -> str | None:
     if isinstance(value, bool):
         return "int"
@@ -263,7 +275,7 @@ def _set_attr(spec, key: str, value, typename: str | None = None) -> None:
         return
     if isinstance(value, np.ndarray):
         value = value.tolist()
-    t = typename or _infer_type(value)
+    t = typename or STANDARD_TYPES.get(key) or _infer_type(value)
     if t is None:  # anything else travels as JSON text
         try:
             spec.attribute(key, json.dumps(value))
@@ -277,6 +289,7 @@ def _set_attr(spec, key: str, value, typename: str | None = None) -> None:
         value = int(value)
     try:
         if t in ("int", "float", "string") and not isinstance(value, (list, tuple)):
+            value = {"int": int, "float": float, "string": str}[t](value)
             spec.attribute(key, value)
         else:
             td = oiio.TypeDesc(t)

@@ -326,7 +326,7 @@ class MappedLayout:
         optional = set(optional or ()) | ALWAYS_OPTIONAL
         helpers: set[str] = set()
         if fields is None:
-            need = set(info.names) & set(FIELDS)
+            need = (set(info.names) & set(FIELDS)) | {"color"}
         else:
             need = set(fields) | {"color"}
             unknown = need - set(FIELDS) - {"mv_valid", "camera"}

@@ -165,7 +165,8 @@ def sample_nearest(img: torch.Tensor, flow: torch.Tensor) -> tuple[torch.Tensor,
         sx, sy, valid = _positions(f, h, w)
         out = _nearest(i, sx, sy, "clamp")
         if bool(torch.isnan(out.sum())):
-            out = torch.nan_to_num(out, nan=float("inf"))
+            inf = float("inf")
+            out = torch.nan_to_num(out, nan=inf, posinf=inf, neginf=-inf)
         return out, valid[None]
 
     if img.dim() == 4:
