@@ -57,7 +57,7 @@ def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
 
 def generated_frame(ctx: dict, number: int, time_: float, like: Frame) -> Frame:
     return Frame(number=number, color=ctx["color"], depth=ctx["depth"], mv=ctx["mv"],
-                 header=dict(like.header), time=time_)
+                 header=dict(like.header), header_types=dict(like.header_types), time=time_)
 
 
 @dataclass
@@ -153,7 +153,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     copies = [(n, n * m) for n in numbers] if emit == "all" else []
     pinfo = describe(pipeline)
     attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
-                    "fgen:command": command, "fgen:pipeline_json": json.dumps(pinfo)}
+                    "fgen:command_line": command, "fgen:pipeline_json": json.dumps(pinfo)}
     written, skipped_existing = 0, 0
     out.check_all([out.path_for(on) for *_, on in copies] + [out.path_for(j[3]) for j in jobs])
     bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)

@@ -119,7 +119,9 @@ def test_quadratic_formula_single_pixel():
     mv0[0, 0, 22] = -8.0
     rq = splat_motion(depth, mv1, mv0, alpha, "quadratic")
     rl = splat_motion(depth, mv1, None, alpha, "linear")
-    assert torch.equal(rq.to1, rl.to1) and torch.equal(rq.valid, rl.valid)
+    tq = (rq.source[0, 0] == 30).nonzero()
+    tl = (rl.source[0, 0] == 30).nonzero()
+    assert torch.equal(tq, tl) and rq.to1[0, 0, tq] == rl.to1[0, 0, tl] == 4.0
 
 
 def test_extrapolation_formulas():

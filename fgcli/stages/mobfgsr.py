@@ -160,10 +160,12 @@ class Warp(Stage):
     def skip(self, ctx):
         import torch
 
-        c1 = ctx["color1"]
+        from fgcli.ops import sanitize_values
+
+        c1, c0 = ctx["color1"], ctx.get("color0")
         ones = torch.ones(1, *c1.shape[-2:], dtype=torch.bool, device=c1.device)
-        return {"s0": ctx.get("color0"), "s1": c1, "sd0": ctx.get("depth0"), "sd1": ctx["depth1"],
-                "v0": ones, "v1": ones}
+        return {"s0": None if c0 is None else sanitize_values(c0), "s1": sanitize_values(c1),
+                "sd0": ctx.get("depth0"), "sd1": ctx["depth1"], "v0": ones, "v1": ones}
 
     def run(self, ctx):
         from fgcli.ops import backward_warp, sample_nearest
