@@ -47,6 +47,9 @@ def main():
     from fgcli.runner import make_ctx
     from fgcli.synth import load_scene, render
 
+    from fgcli.runner import check_device
+
+    check_device("cpu")  # what fgen does at start-up (allocator tuning)
     if args.threads:
         torch.set_num_threads(args.threads)
     W, H = (int(v) for v in args.size.lower().split("x"))

@@ -69,25 +69,67 @@ class RunState:
 
 
 class FrameCache:
-    """Reads frames on demand and keeps at most `keep` in memory."""
+    """Reads frames on demand, prefetches the next ones on a background thread (EXR decode
+    overlaps compute), and keeps at most `keep` in memory (least recently used goes)."""
 
-    def __init__(self, reader, timings: Timings, device: str = "cpu", keep: int = 3):
+    def __init__(self, reader, timings: Timings, device: str = "cpu", keep: int = 4):
+        from concurrent.futures import ThreadPoolExecutor
+
         self.reader, self.timings, self.device, self.keep = reader, timings, device, keep
-        self.frames: dict[int, Frame] = {}
+        self.frames: dict = {}  # number -> Future[Frame]
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fgen-read")
+
+    def _load(self, n: int) -> Frame:
+        t0 = time.perf_counter()
+        f = self.reader.read(n)
+        self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
+        return f
+
+    def prefetch(self, n: int | None) -> None:
+        if n is not None and n not in self.frames:
+            self.frames[n] = self.pool.submit(self._load, n)
+            while len(self.frames) > self.keep:
+                self.frames.pop(next(iter(self.frames)))
 
     def get(self, n: int) -> Frame:
         if n in self.frames:
             self.frames[n] = self.frames.pop(n)  # most recently used last
-            return self.frames[n]
+        else:
+            self.prefetch(n)
+        f = self.frames[n].result()
+        return f.to(self.device) if self.device != "cpu" else f
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True)
+
+
+class AsyncWriter:
+    """Writes frames on a background thread (EXR encode overlaps compute); at most
+    `depth` writes pending; errors surface on the next submit or on close()."""
+
+    def __init__(self, out, timings: Timings, depth: int = 2):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.out, self.timings, self.depth = out, timings, depth
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fgen-write")
+        self.pending: list = []
+
+    def _write(self, path, frame, kw):
         t0 = time.perf_counter()
-        f = self.reader.read(n)
-        self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
-        if self.device != "cpu":
-            f = f.to(self.device)
-        self.frames[n] = f
-        while len(self.frames) > self.keep:
-            self.frames.pop(next(iter(self.frames)))  # least recently used
-        return f
+        self.out.write(path, frame, **kw)
+        self.timings.io_write.append((time.perf_counter() - t0) * 1000.0)
+
+    def submit(self, path, frame, **kw) -> None:
+        while len(self.pending) >= self.depth:
+            self.pending.pop(0).result()
+        self.pending.append(self.pool.submit(self._write, path, frame, kw))
+
+    def close(self) -> None:
+        try:
+            for f in self.pending:
+                f.result()
+        finally:
+            self.pool.shutdown(wait=True)
 
 
 def device_sync(device: str):
@@ -99,7 +141,12 @@ def device_sync(device: str):
 
 
 def check_device(device: str) -> str:
+    """Validate --device and prepare the process for frame-sized tensors."""
     import torch
+
+    from fgcli.ops import tune_allocator
+
+    tune_allocator()  # keep freed frame buffers: page faults cost more than the arithmetic
 
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise UsageError("--device cuda requested but no CUDA device is available")
@@ -157,46 +204,49 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     written, skipped_existing = 0, 0
     out.check_all([out.path_for(on) for *_, on in copies] + [out.path_for(j[3]) for j in jobs])
     bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)
-    with torch.inference_mode():
-        for n, on in copies:
-            path = out.path_for(on)
-            if out.should_write(path):
-                f = cache.get(n)
-                if f.mv is not None and n != numbers[0]:
-                    # in the merged sequence the previous output frame is the last generated
-                    # one: rescale the rendered vectors (linear motion) so they point there
-                    f = f.replace(mv=f.mv * (1.0 - float(max(times))))
-                t0 = time.perf_counter()
-                out.write(path, f.replace(number=on), layout=out_layout, half=half,
-                          compression=compression,
-                          attributes={**attrs_common, "fgen:source_frames": str(n),
-                                      "fgen:rendered": 1})
-                timings.io_write.append((time.perf_counter() - t0) * 1000.0)
-                written += 1
-            else:
-                skipped_existing += 1
-            bar.update(1)
-        for a, b, t, on, prev_t in jobs:
-            path = out.path_for(on)
-            if not out.should_write(path):
-                skipped_existing += 1
+    writer = AsyncWriter(out, timings)
+    wkw = {"layout": out_layout, "half": half, "compression": compression}
+    try:
+        with torch.inference_mode():
+            for n, on in copies:
+                path = out.path_for(on)
+                if out.should_write(path):
+                    f = cache.get(n)
+                    if f.mv is not None and n != numbers[0]:
+                        # in the merged sequence the previous output frame is the last
+                        # generated one: rescale the rendered vectors (linear motion)
+                        f = f.replace(mv=f.mv * (1.0 - float(max(times))))
+                    writer.submit(path, f.replace(number=on).to("cpu"), **wkw,
+                                  attributes={**attrs_common, "fgen:source_frames": str(n),
+                                              "fgen:rendered": 1})
+                    written += 1
+                else:
+                    skipped_existing += 1
                 bar.update(1)
-                continue
-            f1 = cache.get(b)
-            f0 = cache.get(a) if a is not None else None
-            ctx = make_ctx(f0, f1, float(t), mode)
-            ctx["state"] = state
-            ctx["prev_time"] = float(prev_t)
-            ctx = run_stages(stages, ctx, timings, label=str(on), sync=sync)
-            gen = generated_frame(ctx, on, (float(b) + float(t) * (step if mode == "extrap" else (b - a))) * m, f1)
-            t0 = time.perf_counter()
-            src = f"{a},{b}" if a is not None else f"{b}"
-            out.write(path, gen.to("cpu"), layout=out_layout, half=half, compression=compression,
-                      attributes={**attrs_common, "fgen:alpha": float(t),
-                                  "fgen:source_frames": src})
-            timings.io_write.append((time.perf_counter() - t0) * 1000.0)
-            written += 1
-            bar.update(1)
+            todo = [j for j in jobs if out.should_write(out.path_for(j[3]))]
+            skipped_existing += len(jobs) - len(todo)
+            bar.update(len(jobs) - len(todo))
+            for i, (a, b, t, on, prev_t) in enumerate(todo):
+                f1 = cache.get(b)
+                f0 = cache.get(a) if a is not None else None
+                if i + 1 < len(todo):  # decode the next pair while this one computes
+                    cache.prefetch(todo[i + 1][1])
+                    cache.prefetch(todo[i + 1][0])
+                ctx = make_ctx(f0, f1, float(t), mode)
+                ctx["state"] = state
+                ctx["prev_time"] = float(prev_t)
+                ctx = run_stages(stages, ctx, timings, label=str(on), sync=sync)
+                base, span = (b, step) if mode == "extrap" else (a, b - a)
+                gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1)
+                src = f"{a},{b}" if a is not None else f"{b}"
+                writer.submit(out.path_for(on), gen.to("cpu"), **wkw,
+                              attributes={**attrs_common, "fgen:alpha": float(t),
+                                          "fgen:source_frames": src})
+                written += 1
+                bar.update(1)
+    finally:
+        writer.close()
+        cache.close()
     bar.close()
     reader.warn_nonfinite()
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],

@@ -20,8 +20,8 @@ Extrapolation to 1 + alpha: splat with mode="extrap" (the public code: model="li
 gap_fill(r), fill_extrap_holes(r, m1, d1), then backward_warp(color1, r.to1).
 """
 from fgcli.ops._util import sanitize_depth, sanitize_mv, sanitize_values, tune_allocator
-from fgcli.ops.blend import (T_B, T_D_REL, blend_interp, blend_linear, brightness_difference,
-                             repeat_nearest)
+from fgcli.ops.blend import (T_B, T_D_REL, blend_interp, blend_interp_depth, blend_linear,
+                             brightness_difference, repeat_nearest)
 from fgcli.ops.color import luminance, mulaw, srgb_eotf, srgb_oetf, to_display
 from fgcli.ops.fill import extrap_hole_fill, fill_extrap_holes, gap_fill
 from fgcli.ops.metrics import (flip_hdr, flip_ldr, masked_mean, psnr, ssim, ssim_map)
@@ -31,7 +31,8 @@ from fgcli.ops.splat import (SplatResult, dilate_nearest_depth, generated_mv,
 from fgcli.ops.warp import (backward_warp, mv_warp_extrap, mv_warp_interp, sample_nearest)
 
 __all__ = [
-    "SplatResult", "T_B", "T_D_REL", "backward_warp", "blend_interp", "blend_linear",
+    "SplatResult", "T_B", "T_D_REL", "backward_warp", "blend_interp", "blend_interp_depth",
+    "blend_linear",
     "brightness_difference", "chain_mv", "dilate_nearest_depth", "disocclusion_mask",
     "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
     "generated_mv", "luminance", "masked_mean", "motion_coefficients", "mulaw",

@@ -112,6 +112,40 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
     return out
 
 
+def blend_interp_depth(d0_sample: torch.Tensor, d1_sample: torch.Tensor,
+                       valid0: torch.Tensor, valid1: torch.Tensor,
+                       d_target: torch.Tensor | None = None, alpha: float = 0.5,
+                       t_d_rel: float = T_D_REL) -> torch.Tensor:
+    """Depth of the generated frame, chosen by the same rule as blend_interp's colour:
+    the only on-screen sample; agreeing depths -> the temporally nearer one (frame 0 if
+    alpha <= 0.5); disagreeing -> the one matching d_target if exactly one does, else the
+    farther. (1, H, W) inputs (or batched) -> (1, H, W); +inf (sky) is kept, NaN -> +inf.
+    """
+    d0 = check_tensor(d0_sample, "d0_sample", 1)
+    d1 = check_tensor(d1_sample, "d1_sample", 1)
+    v0 = check_tensor(valid0, "valid0", 1, dtype_kind="bool")
+    v1 = check_tensor(valid1, "valid1", 1, dtype_kind="bool")
+    if d_target is not None:
+        d_target = check_tensor(d_target, "d_target", 1)
+    check_same(d0, "d0_sample", (d1, "d1_sample"), (v0, "valid0"), (v1, "valid1"),
+               (d_target, "d_target"))
+    a = check_alpha(alpha)
+    t_d = check_alpha(t_d_rel, "t_d_rel", 0.0, None)
+    d0 = sanitize_depth(d0)
+    d1 = sanitize_depth(d1)
+    near0 = a <= 0.5
+    agree = (d0 == d1) | ((d0 - d1).abs_() <= torch.minimum(d0, d1).mul_(t_d))
+    take0 = d0 > d1
+    if d_target is not None:
+        dt = sanitize_depth(d_target)
+        m0 = (d0 == dt) | ((d0 - dt).abs_() <= torch.minimum(d0, dt).mul_(t_d))
+        m1 = (d1 == dt) | ((d1 - dt).abs_() <= torch.minimum(d1, dt).mul_(t_d))
+        take0 = torch.where(m0 ^ m1, m0, take0)
+    both = torch.where(agree, d0 if near0 else d1, torch.where(take0, d0, d1))
+    return torch.where(v0 & v1, both, torch.where(v0, d0, torch.where(v1, d1, d0 if near0
+                                                                      else d1)))
+
+
 def blend_linear(c0: torch.Tensor, c1: torch.Tensor, alpha: float) -> torch.Tensor:
     """``blend`` baseline (cross-fade): ``(1 - alpha) c0 + alpha c1`` (torch.lerp).
 

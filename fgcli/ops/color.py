@@ -26,13 +26,18 @@ def srgb_oetf(x):
     """sRGB encoding (IEC 61966-2-1) of clip(x, 0, 1): linear light -> display value.
 
     ``12.92 x`` for x <= 0.0031308, else ``1.055 x^(1/2.4) - 0.055``. Any shape.
+    (Computed as the minimum of the two branches, which equals the piecewise definition
+    because the power branch is concave and below the line above the threshold.)
     """
     c = _clip01(x)
+    t = 0.0031308
     if _is_torch(c):
-        hi = c.clamp(min=0.0031308).pow_(1.0 / 2.4).mul_(1.055).sub_(0.055)
-        return torch.where(c <= 0.0031308, c * 12.92, hi)
-    hi = 1.055 * np.power(np.maximum(c, 0.0031308), 1.0 / 2.4) - 0.055
-    return np.where(c <= 0.0031308, c * 12.92, hi).astype(np.float32)
+        p = c.clamp(min=t).pow_(1.0 / 2.4)
+        hi = (p - 1.0).mul_(0.055).add_(p)  # == 1.055 p - 0.055, exactly 1 at p = 1
+        return torch.minimum(hi, c.mul_(12.92), out=hi).clamp_(0.0, 1.0)
+    p = np.power(np.maximum(c, t), 1.0 / 2.4)
+    hi = p + 0.055 * (p - 1.0)
+    return np.clip(np.minimum(hi, c * 12.92), 0.0, 1.0).astype(np.float32)
 
 
 def srgb_eotf(v):

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import torch
 
-from fgcli.ops.blend import T_B, T_D_REL, blend_interp
+from fgcli.ops.blend import T_B, T_D_REL, blend_interp, blend_interp_depth
 from fgcli.ops.fill import fill_extrap_holes, gap_fill
 from fgcli.ops.splat import SplatResult, dilate_nearest_depth, generated_mv, splat_motion
 from fgcli.ops.warp import backward_warp, sample_nearest
@@ -46,11 +46,9 @@ def interpolate(color0, depth0, mv0, color1, depth1, mv1, alpha: float, *,
     c1s, v1 = backward_warp(color1, r.to1, warp_mode)
     d0s, _ = sample_nearest(depth0, r.to0)
     d1s, _ = sample_nearest(depth1, r.to1)
-    color = blend_interp(c0s, c1s, d0s, d1s, v0, v1, r.depth if use_target_depth else None,
-                         alpha, t_d_rel, t_b)
-    # depth of the generated frame: the depth of the sample Eq. 1 favours is not tracked,
-    # so report the nearer of the two warped depths where both are on-screen
-    depth = torch.where(v0 & v1, torch.minimum(d0s, d1s), torch.where(v1, d1s, d0s))
+    dt = r.depth if use_target_depth else None
+    color = blend_interp(c0s, c1s, d0s, d1s, v0, v1, dt, alpha, t_d_rel, t_b)
+    depth = blend_interp_depth(d0s, d1s, v0, v1, dt, alpha, t_d_rel)
     return Generated(color=color, depth=depth, mv=generated_mv(r), motion=r)
 
 

@@ -10,7 +10,7 @@ package imports torch.
 """
 from fgcli.synth.preview import contact_sheet, write_contact_sheet
 from fgcli.synth.randomscene import random_scene
-from fgcli.synth.render import FrameCamera, frame_camera, render
+from fgcli.synth.tracer import FrameCamera, frame_camera, render
 from fgcli.synth.scene import EFFECTS, Scene, load_scene
 from fgcli.synth.sequence import render_sequence, schedule
 

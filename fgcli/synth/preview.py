@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from fgcli.errors import OutputError
-from fgcli.synth.render import render
+from fgcli.synth.tracer import render
 from fgcli.synth.scene import Scene
 
 COLUMNS = ("first", "middle", "last", "depth", "motion")

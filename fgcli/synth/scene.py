@@ -222,12 +222,11 @@ class Scene:
 
     def project(self, point, t: float, role: str = "gt") -> np.ndarray:
         """Pixel position (x right, y down) of a world point in the frame rendered at t."""
-        from fgcli.synth.render import frame_camera
+        from fgcli.io.cameras import project
+        from fgcli.synth.tracer import frame_camera
 
         fc = frame_camera(self, t, role)
-        p = fc.world_to_camera @ np.append(np.asarray(point, float), 1.0)
-        c = fc.projection @ p
-        return np.array([(c[0] / c[3] + 1) * 0.5 * fc.width, (1 - c[1] / c[3]) * 0.5 * fc.height])
+        return project(fc.camera, np.asarray(point, float)[None], fc.width, fc.height)[0, :2]
 
 
 def _texture(tb: _Table | None) -> Texture:

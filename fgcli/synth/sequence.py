@@ -13,13 +13,29 @@ import re
 import time
 
 from fgcli.errors import OutputError, UsageError
-from fgcli.io.frames import write_frame, write_sidecar_cameras
-from fgcli.synth.render import frame_camera, render
+from fgcli.io.frames import write_sidecar_cameras
+from fgcli.io.output import OutputFolder
 from fgcli.synth.scene import Scene
+from fgcli.synth.tracer import frame_camera, render
 
 
 def frame_name(scene: Scene, number: int) -> str:
     return f"{scene.name}.{number:04d}.exr" if number >= 0 else f"{scene.name}.-{-number:04d}.exr"
+
+
+def _write_overscan(path: str, frame, attrs: dict, border: int, camera) -> None:
+    """An overscan frame: the border lies outside the display window (an EXR data window
+    larger than the display window), so readers see the nominal frame and methods that
+    can use the border find it in the data window. `camera` is the display window's."""
+    from fgcli.io import cameras, exr, layouts
+    from fgcli.io.frames import fgen_attributes
+
+    frame = frame.replace(camera=camera)
+    chans, types = layouts.encode(frame, "fgen", half=True)
+    H, W = frame.height, frame.width
+    exr.write_exr(path, chans, types, fgen_attributes(frame, attrs), "zip",
+                  attribute_types=dict(cameras.CAMERA_ATTRIBUTE_TYPES),
+                  data_window=(-border, -border, W, H), display=(W - 2 * border, H - 2 * border))
 
 
 def schedule(scene: Scene, gt_factor: int | None) -> list[tuple[str, int, float, float]]:
@@ -39,22 +55,19 @@ def schedule(scene: Scene, gt_factor: int | None) -> list[tuple[str, int, float,
     return sorted(jobs, key=lambda j: (j[1], j[0]))
 
 
-def _prepare(folder: str, overwrite: bool, keep: set[str], scene: Scene) -> None:
-    if os.path.exists(folder) and not os.path.isdir(folder):
-        raise OutputError("not a folder", file=folder)
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"cannot create output folder: {e.strerror}", file=folder) from None
-    present = [f for f in os.listdir(folder) if not f.startswith(".")]
-    if present and not overwrite:
-        raise OutputError(f"output folder is not empty ({len(present)} entries); pass "
-                          "--overwrite to replace its frames", file=folder)
+def _prepare(folder: str, overwrite: bool, keep: set[str], scene: Scene) -> OutputFolder:
+    if os.path.isdir(folder):
+        present = [f for f in os.listdir(folder) if not f.startswith(".")]
+        if present and not overwrite:
+            raise OutputError(f"output folder is not empty ({len(present)} entries); pass "
+                              "--overwrite to replace its frames", file=folder)
+    out = OutputFolder(folder, overwrite=True, prefix=f"{scene.name}.", padding=4)
     # frames of this scene left over from an earlier, longer render would join the sequence
     mine = re.compile(rf"^{re.escape(scene.name)}\.-?\d+\.exr$")
-    for f in present:
+    for f in os.listdir(folder):
         if mine.match(f) and f not in keep:
             os.unlink(os.path.join(folder, f))
+    return out
 
 
 def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_factor: int = 2,
@@ -76,10 +89,11 @@ def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_fa
     jobs = schedule(scene, K)
     spp = spp or scene.spp
     folders = {"input": out_dir, "gt": gt_dir}
+    outs = {}
     for role, folder in folders.items():
         if folder is not None:
             keep = {frame_name(scene, n) for r, n, _, _ in jobs if r == role}
-            _prepare(folder, overwrite, keep, scene)
+            outs[role] = _prepare(folder, overwrite, keep, scene)
     rate = scene.fps * (K or 1)  # frames per second of the frame numbers
     cams = {"input": {}, "gt": {}}
     scene.reset_stats()
@@ -104,18 +118,19 @@ def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_fa
                 "fgen:mv_time": prev_t,
                 "fgen:frame_rate": rate,
                 "fgen:gt_factor": K or 1,
-                "fgen:alpha": "coverage (straight)",
+                "fgen:synth_alpha": "coverage of geometry (straight; sky is 0)",
                 "fgen:mv_space": "pixels to the previous output frame, prev_xy = xy + mv",
             }
-            if role == "input":
-                fc = frame_camera(scene, t, role)
-                if scene.has("jitter"):
-                    attrs["fgen:jitter_x"], attrs["fgen:jitter_y"] = fc.jitter
-                if scene.has("overscan"):
-                    attrs["fgen:overscan"] = fc.border
+            fc = frame_camera(scene, t, role)
+            if scene.has("jitter") and role == "input":
+                attrs["fgen:jitter_x"], attrs["fgen:jitter_y"] = fc.jitter
             path = os.path.join(folders[role], frame_name(scene, num))
-            write_frame(path, frame, attributes=attrs)
-            cams[role][num] = frame.camera
+            if fc.border:
+                attrs["fgen:overscan"] = fc.border
+                _write_overscan(path, frame, attrs, fc.border, fc.display_camera)
+            else:
+                outs[role].write(path, frame, attributes=attrs)
+            cams[role][num] = fc.display_camera
             if bar is not None:
                 bar.update(1)
     finally:

@@ -12,7 +12,7 @@ gives the same bytes.
 
 Work counters (scene.stats, cumulative; `scene.reset_stats()`): primary_rays, shadow_rays,
 reflection_rays, translucent_rays, primitive_tests (ray-primitive intersection tests),
-disocclusion_rays (extras only).
+disocclusion_rays and analysis_rays (extras only).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from fgcli.synth.scene import Scene
 INF = math.inf
 FILTER = 1.0  # texture filter width, in pixels
 MAX_RAYS = 1 << 16  # rays per chunk: keeps the working set in cache and memory bounded
+CULL = True  # skip primitives whose bounding sphere no ray of a batch can meet (exact)
 _EPS = 1e-6
 
 
@@ -51,7 +52,18 @@ class FrameCamera:
 
     @property
     def camera(self) -> Camera:
+        """The camera of the rendered frame (overscan border included)."""
         return Camera(self.world_to_camera.copy(), self.projection.copy())
+
+    @property
+    def display_camera(self) -> Camera:
+        """The camera of the display window (the frame without its overscan border)."""
+        if not self.border:
+            return self.camera
+        P = self.projection.copy()
+        P[0, 0] *= self.width / (self.width - 2 * self.border)
+        P[1, 1] *= self.height / (self.height - 2 * self.border)
+        return Camera(self.world_to_camera.copy(), P)
 
 
 def _halton(i: int, base: int) -> float:
@@ -269,6 +281,72 @@ def _occluded(scene: Scene, ids: list[int], xf: list[_Xf], o, d, tmax, n: int):
     return blocked
 
 
+def _band_objects(scene: Scene, ids: list[int], xf: list[_Xf], fc: FrameCamera,
+                  y0: int, y1: int) -> list[int]:
+    """Objects whose bounding sphere can meet a camera ray through pixel rows [y0, y1).
+
+    Each test is exact for the sphere against the four planes (through the eye) that bound
+    the band of rays, so culling never changes the image, only the work.
+    """
+    if not CULL:
+        return ids
+    V = fc.world_to_camera
+    b_hi = (1.0 - 2.0 * (y0 - 1.0) / fc.height) * fc.tan_y  # one pixel margin for jitter
+    b_lo = (1.0 - 2.0 * (y1 + 1.0) / fc.height) * fc.tan_y
+    a_hi = fc.tan_x * (1.0 + 2.0 / fc.width)
+    out = []
+    for k in ids:
+        r = scene.objects[k].bound
+        if not math.isfinite(r):
+            out.append(k)
+            continue
+        cx, cy, cz = V[:3, :3] @ np.asarray(xf[k].T) + V[:3, 3]
+        if ((cy + b_hi * cz) / math.hypot(1.0, b_hi) > r
+                or (-cy - b_lo * cz) / math.hypot(1.0, b_lo) > r
+                or (cx + a_hi * cz) / math.hypot(1.0, a_hi) > r
+                or (-cx + a_hi * cz) / math.hypot(1.0, a_hi) > r
+                or cz > r):
+            continue
+        out.append(k)
+    return out
+
+
+def _segment_objects(scene: Scene, ids: list[int], xf: list[_Xf], org, Ld, light) -> list[int]:
+    """Objects whose bounding sphere can block some of the shadow rays from points `org`:
+    toward the point light at `light`, or along the direction Ld (directional: light None)."""
+    if not CULL:
+        return ids
+    cand = [k for k in ids if math.isfinite(scene.objects[k].bound)]
+    out = [k for k in ids if k not in cand]
+    if not cand:
+        return out
+    if light is not None:  # every segment lies in the box around the points and the light
+        lo = [min(float(org[i].min()), light[i]) for i in range(3)]
+        hi = [max(float(org[i].max()), light[i]) for i in range(3)]
+        for k in cand:
+            c, r = xf[k].T, scene.objects[k].bound
+            d2 = sum(max(lo[i] - c[i], 0.0, c[i] - hi[i]) ** 2 for i in range(3))
+            if d2 <= r * r:
+                out.append(k)
+        return sorted(out)
+    L = np.asarray([float(Ld[i][0]) for i in range(3)])
+    e1 = np.cross(L, [0.0, 1.0, 0.0] if abs(L[1]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(L, e1)
+    proj = [_dot(org, tuple(float(x) for x in e)) for e in (e1, e2, L)]
+    lo = [float(p.min()) for p in proj]
+    hi = [float(p.max()) for p in proj]
+    for k in cand:
+        c, r = np.asarray(xf[k].T), scene.objects[k].bound
+        cu, cv, cs = c @ e1, c @ e2, c @ L
+        # the rays leave the points along +L: the sphere must overlap their footprint
+        # across L and not lie wholly behind all of them
+        if (cu + r >= lo[0] and cu - r <= hi[0] and cv + r >= lo[1] and cv - r <= hi[1]
+                and cs + r >= lo[2]):
+            out.append(k)
+    return sorted(out)
+
+
 @dataclass
 class _Hits:
     """Surface attributes of a set of rays (zeros where nothing was hit)."""
@@ -355,35 +433,45 @@ def _lights_at(scene: Scene, t: float):
     return out
 
 
+def _toward(kind: str, v, P, m: int):
+    """Unit direction toward a light, distance (None: directional), 1/d^2 falloff (or None)."""
+    if kind == "directional":
+        return tuple(torch.full((m,), c) for c in v), None, None
+    Lv = _sub(v, P)
+    d2 = torch.clamp(_dot(Lv, Lv), min=1e-12)
+    dist = torch.sqrt(d2)
+    return (Lv[0] / dist, Lv[1] / dist, Lv[2] / dist), dist, 1.0 / d2
+
+
+def _blocked(scene: Scene, xf, P, n, Ld, dist, sel, light, counter: str = "shadow_rays"):
+    """Shadow rays from the points P[sel] (offset along n) toward Ld: bool per ray of sel.
+    light: the point light's position (None: directional)."""
+    casters = [k for k in scene.opaque if scene.objects[k].shadow]
+    Ps, ns = _take(P, sel), _take(n, sel)
+    # offset the origin along the normal, relative to the distance from the world origin
+    eps = 2e-4 * (1.0 + torch.sqrt(_dot(Ps, Ps)))
+    org = _add_scaled(Ps, ns, eps)
+    Ls = _take(Ld, sel)
+    tmax = INF if dist is None else dist[sel]
+    _count(scene, counter, sel.numel())
+    casters = _segment_objects(scene, casters, xf, org, Ls, light)
+    return _occluded(scene, casters, xf, org, Ls, tmax, sel.numel())
+
+
 def _shade(scene: Scene, lights, xf, h: _Hits, d, m: int, shadows: bool, specular: bool):
     """Direct lighting of m hit points: ambient + diffuse (+ shadows) (+ specular)."""
     amb = 0.65 + 0.35 * h.n[1]
     col = [h.albedo[i] * (float(scene.ambient[i]) * amb) for i in range(3)]
     V = None
-    casters = [k for k in scene.opaque if scene.objects[k].shadow]
     for kind, lcol, v in lights:
-        if kind == "directional":
-            Ld = tuple(torch.full((m,), c) for c in v)
-            dist = None
-            fall = None
-        else:
-            Lv = _sub(v, h.P)
-            d2 = torch.clamp(_dot(Lv, Lv), min=1e-12)
-            dist = torch.sqrt(d2)
-            Ld = (Lv[0] / dist, Lv[1] / dist, Lv[2] / dist)
-            fall = 1.0 / d2
+        Ld, dist, fall = _toward(kind, v, h.P, m)
         ndl = torch.clamp(_dot(h.n, Ld), min=0.0)
         w = ndl if fall is None else ndl * fall
-        if shadows and casters:
+        if shadows:
             sel = torch.nonzero(ndl > 0).squeeze(1)
             if sel.numel():
-                Ps, ns = _take(h.P, sel), _take(h.n, sel)
-                # offset the origin along the normal, relative to the distance from the camera
-                eps = 2e-4 * (1.0 + torch.sqrt(_dot(Ps, Ps)))
-                org = _add_scaled(Ps, ns, eps)
-                tmax = INF if dist is None else dist[sel]
-                blocked = _occluded(scene, casters, xf, org, _take(Ld, sel), tmax, sel.numel())
-                _count(scene, "shadow_rays", sel.numel())
+                blocked = _blocked(scene, xf, h.P, h.n, Ld, dist, sel,
+                                   None if kind == "directional" else v)
                 w = w.index_put((sel,), torch.where(blocked, 0.0, w[sel]))
         for i in range(3):
             col[i] = col[i] + h.albedo[i] * (w * lcol[i])
@@ -397,6 +485,23 @@ def _shade(scene: Scene, lights, xf, h: _Hits, d, m: int, shadows: bool, specula
             for i in range(3):
                 col[i] = col[i] + sp * lcol[i]
     return col
+
+
+def _lit(scene: Scene, lights, xf, P, n, m: int) -> list[torch.Tensor]:
+    """Per light: does it reach the points P (facing it, and not shadowed when the scene
+    has shadows)? Analysis only (counted as analysis_rays)."""
+    out = []
+    for kind, _, v in lights:
+        Ld, dist, _ = _toward(kind, v, P, m)
+        vis = _dot(n, Ld) > 0
+        if scene.has("shadows"):
+            sel = torch.nonzero(vis).squeeze(1)
+            if sel.numel():
+                lp = None if kind == "directional" else v
+                vis = vis.index_put((sel,), ~_blocked(scene, xf, P, n, Ld, dist, sel, lp,
+                                                      "analysis_rays"))
+        out.append(vis)
+    return out
 
 
 def _trace_shade(scene, lights, xf, o, d, n: int, seconds: float, ids: list[int], pix, t0):
@@ -447,8 +552,10 @@ def render(scene: Scene, t: float, prev_t: float | None = None, spp: int | None 
     applies jitter/overscan (see frame_camera), 'gt' renders the nominal frame.
     extras: when a dict is given it receives (H, W) tensors object_id (int, -1 sky), edge
     (bool: the pixel's samples see more than one object), and when prev_t is given
-    prev_depth (view depth of the pixel's surface point at prev_t) and disoccluded (bool:
-    that point is hidden or off-screen at prev_t; costs one extra ray per pixel).
+    prev_depth (view depth of the pixel's surface point at prev_t), disoccluded (bool:
+    that point is hidden or off-screen at prev_t) and light_changed (bool: a light started
+    or stopped reaching that point: a shadow or the terminator moved over it). Computed at
+    the pixel-centre sample; costs about one extra ray per pixel and light.
     Work done is added to scene.stats.
     """
     with torch.inference_mode():
@@ -466,7 +573,8 @@ def _render(scene, t, prev_t, spp, role, number, extras):
     if prev_t is not None:
         fcp = frame_camera(scene, prev_t, role)
         Mp = (fcp.projection @ fcp.world_to_camera).tolist()
-        prev = (fcp, Mp, _transforms(scene, prev_t), fcp.world_to_camera[2].tolist())
+        prev = (fcp, Mp, _transforms(scene, prev_t), fcp.world_to_camera[2].tolist(),
+                _lights_at(scene, prev_t))
     offs, n_color, centre = _sample_offsets(spp)
     S = len(offs)
     HW = H * W
@@ -483,6 +591,7 @@ def _render(scene, t, prev_t, spp, role, number, extras):
         edge = torch.zeros(HW, dtype=torch.bool)
         pdepth = torch.full((HW,), INF)
         disocc = torch.zeros(HW, dtype=torch.bool)
+        lchange = torch.zeros(HW, dtype=torch.bool)
     rows = max(1, MAX_RAYS // (S * W))
     xs = torch.arange(W, dtype=torch.float32) + (0.5 + fc.jitter[0])
     opaque, transl = scene.opaque, scene.translucent
@@ -497,7 +606,7 @@ def _render(scene, t, prev_t, spp, role, number, extras):
         py = torch.cat([(ys[:, None] + oy).expand(y1 - y0, W).reshape(-1) for _, oy in offs])
         d = _camera_rays(fc, px, py)
         _count(scene, "primary_rays", n)
-        tt, who = _nearest(scene, opaque, xf, origin, d, n)
+        tt, who = _nearest(scene, _band_objects(scene, opaque, xf, fc, y0, y1), xf, origin, d, n)
         hit = who >= 0
         h = _surfaces(scene, xf, origin, d, tt, who, seconds, n, pix)
         col = [torch.zeros(n) for _ in range(3)]
@@ -531,7 +640,8 @@ def _render(scene, t, prev_t, spp, role, number, extras):
         col = [torch.where(hit, col[i], sky[i]) for i in range(3)]
         if transl:
             _count(scene, "translucent_rays", n)
-            t2, who2 = _nearest(scene, transl, xf, origin, d, n)
+            t2, who2 = _nearest(scene, _band_objects(scene, transl, xf, fc, y0, y1), xf,
+                                origin, d, n)
             tsel = torch.nonzero(t2 < tt).squeeze(1)
             if tsel.numel():
                 d2 = _take(d, tsel)
@@ -561,12 +671,15 @@ def _render(scene, t, prev_t, spp, role, number, extras):
             albedo[i, sl] = h.albedo[i][cs]
         rough[sl] = torch.where(wc >= 0, h.rough[cs], 1.0)
         if prev is not None:
-            fcp, Mp, xfp, zrow = prev
+            fcp, Mp, xfp, zrow, lights_p = prev
             qx = torch.zeros(M)
             qy = torch.zeros(M)
             qw = torch.ones(M)
             pd = torch.full((M,), INF)
             pl = _take(h.plocal, cs)
+            if want:  # the surface point and its normal at prev_t
+                Pp = [torch.zeros(M) for _ in range(3)]
+                Np = [torch.zeros(M) for _ in range(3)]
             for k in range(len(scene.objects)):
                 sel = torch.nonzero(wc == k).squeeze(1)
                 if sel.numel() == 0:
@@ -575,6 +688,10 @@ def _render(scene, t, prev_t, spp, role, number, extras):
                 cx, cy, cw = _project(Mp, P)
                 qx[sel], qy[sel], qw[sel] = cx, cy, cw
                 pd[sel] = -(zrow[0] * P[0] + zrow[1] * P[1] + zrow[2] * P[2] + zrow[3])
+                if want:
+                    nk = _rot(xfp[k].R, _rot_t(xf[k].R, _take(_take(h.n, cs), sel)))
+                    for i in range(3):
+                        Pp[i][sel], Np[i][sel] = P[i], nk[i]
             ssel = torch.nonzero(wc < 0).squeeze(1)
             if ssel.numel():  # sky: a direction, moved by the camera rotation only
                 cx, cy, cw = _project(Mp, _take(_take(d, cs), ssel), 0.0)
@@ -598,6 +715,19 @@ def _render(scene, t, prev_t, spp, role, number, extras):
                 same = (wp == wc) & ((wc < 0) | (torch.abs(tp - pd) <= 1e-3 * pd + 1e-4))
                 onscreen = front & (qx >= 0) & (qx < fcp.width) & (qy >= 0) & (qy < fcp.height)
                 disocc[sl] = ~(same & onscreen)
+                # did a light start or stop reaching the point (a shadow or the terminator
+                # moved over it)? Warping cannot reproduce those pixels either.
+                hs = torch.nonzero(wc >= 0).squeeze(1)
+                if hs.numel() and lights:
+                    Pn, Nn = _take(_take(h.P, cs), hs), _take(_take(h.n, cs), hs)
+                    now = _lit(scene, lights, xf, Pn, Nn, hs.numel())
+                    then = _lit(scene, lights_p, xfp, _take(Pp, hs), _take(Np, hs), hs.numel())
+                    ch = torch.zeros(hs.numel(), dtype=torch.bool)
+                    for a, b in zip(now, then):
+                        ch |= a != b
+                    lc = torch.zeros(M, dtype=torch.bool)
+                    lc[hs] = ch
+                    lchange[sl] = lc
         if want:
             oid[sl] = wc
             e = torch.zeros(M, dtype=torch.bool)
@@ -617,7 +747,8 @@ def _render(scene, t, prev_t, spp, role, number, extras):
     if want:
         extras.update(object_id=oid.reshape(H, W), edge=edge.reshape(H, W))
         if prev is not None:
-            extras.update(prev_depth=pdepth.reshape(H, W), disoccluded=disocc.reshape(H, W))
+            extras.update(prev_depth=pdepth.reshape(H, W), disoccluded=disocc.reshape(H, W),
+                          light_changed=lchange.reshape(H, W))
         extras["camera"] = fc
     return frame
 
