@@ -38,14 +38,17 @@ class Splat(Stage):
     help = ("Depth-aware forward splat of frame 1's motion to the generated time, nearest "
             "surface wins (packed int64 keys, scatter_reduce amin).")
     inputs = ("depth1_d", "mv1_d", "alpha", "mode")
-    optional_inputs = ("mv0",)
+    optional_inputs = ("mv0", "depth0")
     outputs = ("motion",)
     options = (
         Option("motion", "choice", "auto", "motion model: auto = quadratic for interpolation, "
                "linear for extrapolation (as the public Mob-FGSR code)",
                choices=("auto", "linear", "quadratic")),
-        Option("mv0_fetch", "choice", "nearest", "how frame 0's vector is fetched for the "
-               "quadratic model", choices=("nearest", "bilinear")),
+        Option("mv0_depth_check", "bool", False, "quadratic model: use frame 0's vector only "
+               "where frame 0's depth agrees with the surface (fgen extension; the paper does "
+               "not check)"),
+        Option("mv0_depth_tol", "float", 0.05, "relative depth tolerance of that check",
+               range=(0.0, 10.0)),
     )
 
     def model(self, mode: str) -> str:
@@ -76,9 +79,11 @@ class Splat(Stage):
 
         model = self.model(ctx["mode"])
         mv0 = ctx.get("mv0") if model == "quadratic" else None
+        d0 = ctx.get("depth0") if (mv0 is not None and self.mv0_depth_check) else None
         return {"motion": splat_motion(ctx["depth1_d"], ctx["mv1_d"], mv0, ctx["alpha"],
                                        model="linear" if mv0 is None else model,
-                                       mode=ctx["mode"], mv0_fetch=self.mv0_fetch)}
+                                       mode=ctx["mode"], depth0=d0,
+                                       depth0_tol_rel=self.mv0_depth_tol)}
 
 
 @register
