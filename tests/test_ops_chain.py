@@ -157,3 +157,38 @@ def test_zero_motion_returns_the_frame(sc, alpha, model):
     assert (g.mv == 0).all()
     e = extrapolate(c0, d0, z, z, alpha, model=model)
     assert torch.equal(e.color, c0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(scene(special=False), st.sampled_from(["linear", "quadratic"]))
+def test_interp_approaches_endpoints(sc, model):
+    c0, _, m0, c1, _, m1 = sc
+    h, w = c0.shape[1:]
+    flat = torch.full((1, h, w), 3.0)  # one depth: no disocclusion decisions
+    # the difference is O(alpha * |mv| * colour gradient): |mv| <= 25 px here
+    tol = 1e-3 + 1e-4 * float(max(c0.abs().max(), c1.abs().max()))
+    g = interpolate(c0, flat, m0, c1, flat, m1, 1e-6, model=model)
+    assert torch.allclose(g.color, c0, atol=tol, rtol=0)
+    g = interpolate(c0, flat, m0, c1, flat, m1, 1.0 - 1e-6, model=model)
+    assert torch.allclose(g.color, c1, atol=tol, rtol=0)
+
+
+def test_batched_chain_pieces():
+    (c0, d0, m0), (c1, d1, m1) = frames(0.0, 1.0)
+    B = lambda t: torch.stack([t, t])  # noqa: E731
+    r = gap_fill(splat_motion(B(d1), B(m1), B(m0), 0.5, depth0=B(d0)), fallback_mv=B(m0))
+    c0s, v0 = backward_warp(B(c0), r.to0)
+    c1s, v1 = backward_warp(B(c1), r.to1)
+    d0s, _ = sample_nearest(B(d0), r.to0)
+    d1s, _ = sample_nearest(B(d1), r.to1)
+    out = blend_interp(c0s, c1s, d0s, d1s, v0, v1, alpha=0.5)
+    single = interpolate(c0, d0, m0, c1, d1, m1, 0.5, dilate=0)
+    assert out.shape == (2, 3, *c0.shape[1:])
+    assert torch.equal(out[0], single.color) and torch.equal(out[1], single.color)
+
+
+def test_bench_smoke(capsys):
+    from fgcli.ops import _bench
+    _bench.main(["--size", "40x24", "--runs", "1", "--no-tune"])
+    out = capsys.readouterr().out
+    assert "INTERP chain" in out and "EXTRAP chain" in out

@@ -11,13 +11,12 @@ from fgcli.errors import InputError, UsageError
 def _size(ctx, param, value):
     if value is None:
         return None
+    from fgcli.synth.scene import parse_size
+
     try:
-        w, h = (int(v) for v in value.lower().split("x"))
-    except ValueError:
-        raise click.BadParameter(f"'{value}' (expected WxH, e.g. 256x144)") from None
-    if w < 1 or h < 1:
-        raise click.BadParameter(f"'{value}' (width and height must be positive)")
-    return w, h
+        return parse_size(value)
+    except UsageError as e:
+        raise click.BadParameter(e.message) from None
 
 
 def _scene_files(paths) -> list[str]:

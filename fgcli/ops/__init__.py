@@ -6,18 +6,25 @@ returns finite values for the hard cases of DESIGN.md section 5. Conventions: pi
 centres at integer + 0.5, x right, y down; depth linear (> 0, +inf sky); mv from frame t
 to frame t-1 in pixels (``prev_xy = xy + mv``).
 
-Mob-FGSR interpolation, frame 0 (older) and 1 (newer), time alpha::
+Mob-FGSR interpolation, frame 0 (older) and 1 (newer), time alpha (what
+``mobfgsr_interpolate`` runs)::
 
     d1, m1 = dilate_nearest_depth(depth1, mv1)
-    r = splat_motion(d1, m1, mv0, alpha, model="quadratic", mode="interp")
-    r = gap_fill(r, fallback_mv=mv0)
+    r = splat_motion(d1, m1, mv0, alpha, model="quadratic", mode="interp", depth0=depth0)
+    r = gap_fill(r, fallback_mv=mv0, fallback_depth=depth0)
     c0s, v0 = backward_warp(color0, r.to0); c1s, v1 = backward_warp(color1, r.to1)
     d0s, _ = sample_nearest(depth0, r.to0); d1s, _ = sample_nearest(depth1, r.to1)
     out = blend_interp(c0s, c1s, d0s, d1s, v0, v1, alpha=alpha)
-    out_mv = generated_mv(r)
+    out_depth = blend_interp_depth(d0s, d1s, v0, v1, alpha=alpha)
+    out_mv = generated_mv(r)              # toward time 0
 
-Extrapolation to 1 + alpha: splat with mode="extrap" (the public code: model="linear"),
-gap_fill(r), fill_extrap_holes(r, m1, d1), then backward_warp(color1, r.to1).
+Extrapolation to 1 + alpha (``mobfgsr_extrapolate``): splat with mode="extrap" (the public
+code: model="linear"), gap_fill(r), fill_extrap_holes(r, m1, d1), then
+backward_warp(color1, r.to1); generated_mv(r) points toward frame 1.
+
+Performance: ``python -m fgcli.ops._bench`` times every op at 1080p. Call
+``tune_allocator()`` once per process (see its docstring): frame-sized temporaries
+otherwise pay for fresh page faults on every op.
 """
 from fgcli.ops._util import sanitize_depth, sanitize_mv, sanitize_values, tune_allocator
 from fgcli.ops.blend import (T_B, T_D_REL, blend_interp, blend_interp_depth, blend_linear,
@@ -25,6 +32,9 @@ from fgcli.ops.blend import (T_B, T_D_REL, blend_interp, blend_interp_depth, ble
 from fgcli.ops.color import luminance, mulaw, srgb_eotf, srgb_oetf, to_display
 from fgcli.ops.fill import extrap_hole_fill, fill_extrap_holes, gap_fill
 from fgcli.ops.metrics import (flip_hdr, flip_ldr, masked_mean, psnr, ssim, ssim_map)
+from fgcli.ops.mobfgsr import Generated
+from fgcli.ops.mobfgsr import extrapolate as mobfgsr_extrapolate
+from fgcli.ops.mobfgsr import interpolate as mobfgsr_interpolate
 from fgcli.ops.motion import chain_mv, disocclusion_mask
 from fgcli.ops.splat import (SplatResult, dilate_nearest_depth, generated_mv,
                              motion_coefficients, splat_motion)
@@ -34,8 +44,9 @@ __all__ = [
     "SplatResult", "T_B", "T_D_REL", "backward_warp", "blend_interp", "blend_interp_depth",
     "blend_linear",
     "brightness_difference", "chain_mv", "dilate_nearest_depth", "disocclusion_mask",
-    "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
-    "generated_mv", "luminance", "masked_mean", "motion_coefficients", "mulaw",
+    "Generated", "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
+    "generated_mv", "luminance", "masked_mean", "mobfgsr_extrapolate", "mobfgsr_interpolate",
+    "motion_coefficients", "mulaw",
     "mv_warp_extrap", "mv_warp_interp", "psnr", "repeat_nearest", "sample_nearest",
     "sanitize_depth", "sanitize_mv", "sanitize_values", "splat_motion", "srgb_eotf",
     "srgb_oetf", "ssim", "ssim_map", "to_display", "tune_allocator",

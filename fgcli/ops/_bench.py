@@ -7,6 +7,7 @@ same run (one full-frame colour copy), as DESIGN.md section 6 asks.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -70,7 +71,10 @@ def main(argv=None):
     (_, _, _), (c0, d0, m0), (c1, d1, m1) = synth(h, w)
     alpha = 0.5
     print(f"size {w}x{h}, torch {torch.__version__}, threads {torch.get_num_threads()}, "
-          f"tune_allocator {not args.no_tune}")
+          f"tune_allocator {not args.no_tune}, "
+          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', '(unset)')}")
+    print("(with cores shared by other busy processes set OMP_WAIT_POLICY=PASSIVE before "
+          "torch is imported: the default spin-wait made every op ~5-10x slower here)")
 
     ref = timeit(lambda: c1.clone(), args.runs)
     rows = [("reference: colour copy", ref)]

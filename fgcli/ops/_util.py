@@ -20,6 +20,9 @@ BIG = 1.0e30
 # Motion vectors are clamped to +-MV_MAX pixels: "off-screen" for any real image, and
 # far from float32 overflow when scaled by the motion-model coefficients.
 MV_MAX = 1.0e6
+# Largest extrapolation distance accepted (in frame intervals): keeps alpha^2 * MV_MAX far
+# from float32 overflow.
+ALPHA_MAX = 1.0e6
 # float32 bit pattern of +inf: the largest key a non-negative depth can produce.
 INF_BITS = 0x7F800000
 
@@ -90,14 +93,95 @@ def check_choice(value, name: str, choices) -> str:
 
 @functools.lru_cache(maxsize=16)
 def _grid_cached(h: int, w: int, device: str):
-    gx = torch.arange(w, dtype=torch.float32, device=device).expand(h, w)
-    gy = torch.arange(h, dtype=torch.float32, device=device)[:, None].expand(h, w)
+    dev = torch.device(device)
+    gx = torch.arange(w, dtype=torch.float32, device=dev).expand(h, w)
+    gy = torch.arange(h, dtype=torch.float32, device=dev)[:, None].expand(h, w)
     return gx, gy
 
 
 def grid(h: int, w: int, device) -> tuple[torch.Tensor, torch.Tensor]:
     """Index-coordinate grids (H, W) (expanded views, do not write into them)."""
     return _grid_cached(int(h), int(w), str(device))
+
+
+@functools.lru_cache(maxsize=16)
+def _aux_cached(h: int, w: int, device: str):
+    dev = torch.device(device)
+    xs = torch.arange(w, dtype=torch.float32, device=dev)
+    ys = torch.arange(h, dtype=torch.float32, device=dev)
+    return {
+        # x + 0.5 as a row / column (broadcast): nearest pixel = floor(x + 0.5 + flow)
+        "xh": xs + 0.5, "yh": (ys + 0.5)[:, None],
+        # grid_sample (align_corners=False) normalised pixel centres, contiguous (H, W)
+        "gxn": ((xs + 0.5) * (2.0 / w) - 1.0).expand(h, w).contiguous(),
+        "gyn": ((ys + 0.5) * (2.0 / h) - 1.0)[:, None].expand(h, w).contiguous(),
+        # inside-the-image thresholds on the flow itself: -0.5 - x <= f < w - 0.5 - x
+        "lox": -0.5 - xs, "hix": (w - 0.5) - xs,
+        "loy": (-0.5 - ys)[:, None], "hiy": ((h - 0.5) - ys)[:, None],
+        "ar64": torch.arange(h * w, dtype=torch.int64, device=dev),
+        "ar32": torch.arange(h * w, dtype=torch.int32, device=dev),
+    }
+
+
+def aux(h: int, w: int, device) -> dict:
+    """Cached per-size helper tensors (read-only)."""
+    return _aux_cached(int(h), int(w), str(device))
+
+
+# float32 integer arithmetic is exact below 2**24: flat indices of images up to 16.7 Mpx
+EXACT_F32 = 1 << 24
+
+
+def flow_is_clean(flow: torch.Tensor, limit: float = MV_MAX) -> bool:
+    """True when every value is finite and within +-limit (two cheap reductions)."""
+    if flow.numel() == 0:
+        return True
+    hi, lo = float(flow.amax()), float(flow.amin())  # NaN propagates -> False below
+    return hi <= limit and lo >= -limit
+
+
+def sanitize_flow_positions(flow: torch.Tensor) -> torch.Tensor:
+    """Flow safe for index arithmetic: NaN -> far off-screen (so it reads as invalid),
+    +-inf and huge values -> +-4e6 px (still off-screen). No copy when already clean."""
+    if flow_is_clean(flow):
+        return flow
+    far = 4.0 * MV_MAX
+    return torch.nan_to_num(flow, nan=-far, posinf=far, neginf=-far).clamp_(-far, far)
+
+
+def inside_mask(flow: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """(H, W) bool: the position xy + flow lies in the image rectangle [0, W) x [0, H)
+    (pixel coordinates), tested on the flow against exact per-column/row thresholds.
+    NaN flow gives False."""
+    a = aux(h, w, flow.device)
+    vx = (flow[0] >= a["lox"]) & (flow[0] < a["hix"])
+    vy = (flow[1] >= a["loy"]) & (flow[1] < a["hiy"])
+    return vx.logical_and_(vy)
+
+
+def nearest_index(flow: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Flat index (N,) int32 (int64 above 2**31 px) of the pixel nearest ``xy + flow``,
+    clamped to the image (edge replicate). ``flow`` must be finite (see
+    sanitize_flow_positions); ties (exact half pixels) round up."""
+    a = aux(h, w, flow.device)
+    ix = torch.add(flow[0], a["xh"]).floor_().clamp_(0, w - 1)
+    iy = torch.add(flow[1], a["yh"]).floor_().clamp_(0, h - 1)
+    if h * w < EXACT_F32:
+        return iy.mul_(w).add_(ix).view(-1).to(torch.int32)
+    idx = iy.to(torch.int64).mul_(w).add_(ix.to(torch.int64)).view(-1)
+    return idx if h * w >= 2 ** 31 else idx.to(torch.int32)
+
+
+def gather_pixels(field: torch.Tensor, idx: torch.Tensor, out: torch.Tensor | None = None):
+    """field (C, H, W) read at flat indices idx (M,) -> (C, M) (per-channel index_select,
+    the fastest CPU gather)."""
+    c = field.shape[0]
+    flat = field.reshape(c, -1)
+    if out is None:
+        out = torch.empty((c, idx.numel()), dtype=field.dtype, device=field.device)
+    for k in range(c):
+        torch.index_select(flat[k], 0, idx, out=out[k])
+    return out
 
 
 def sanitize_values(x: torch.Tensor, big: float = BIG) -> torch.Tensor:

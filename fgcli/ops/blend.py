@@ -5,7 +5,6 @@ import torch
 
 from fgcli.ops._util import (check_alpha, check_same, check_tensor, sanitize_depth,
                              sanitize_values)
-from fgcli.ops.color import srgb_oetf
 
 # Default relative depth-agreement threshold for linear depth. The paper's T_D = 0.0028 is
 # on [0, 1] device depth, which is not relative; FSR 3's disocclusion test on linear depth
@@ -16,18 +15,27 @@ T_D_REL = 0.02
 T_B = 0.13
 
 
+def _encode_fast(c: torch.Tensor) -> torch.Tensor:
+    """``x^(1/2.4)`` of x clamped to [0.0031308, 1]: the power branch of the sRGB OETF
+    without its 1.055 scale (the caller scales differences) and 0.055 offset (cancels in
+    differences). The linear toe is flattened (x < 0.0031308 reads as 0.0031308: display
+    differences below 0.04, irrelevant against T_B). Finite input only.
+    exp(log(x) / 2.4) is ~3x faster than pow on CPU."""
+    return c.clamp(0.0031308, 1.0).log_().mul_(1.0 / 2.4).exp_()
+
+
 def brightness_difference(c0: torch.Tensor, c1: torch.Tensor) -> torch.Tensor:
     """Mob-FGSR's brightness difference ``0.5|dR'| + |dG'| + 0.5|dB'|`` on display-referred
-    colour (x' = sRGB OETF of clip(x, 0, 1)). (3, H, W) x2 -> (1, H, W)."""
-    d = (srgb_oetf(c0) - srgb_oetf(c1)).abs_()
-    out = d[..., 1:2, :, :] + 0.5 * (d[..., 0:1, :, :] + d[..., 2:3, :, :])
-    return out
+    colour x' = sRGB OETF of clip(x, 0, 1) (the linear toe below 0.0031308 is flattened, a
+    < 0.04 change). (3, H, W) x2 (or batched) -> (1, H, W). Inputs must be finite."""
+    d = _encode_fast(c0).sub_(_encode_fast(c1)).abs_()
+    out = d[..., 0:1, :, :] + d[..., 2:3, :, :]
+    return out.mul_(0.5 * 1.055).add_(d[..., 1:2, :, :], alpha=1.055)
 
 
-def _select(mask, a, b):
-    """where(mask, a, b) for finite a, b; lerp with a 0/1 weight is exact and, on CPU,
-    several times faster than torch.where for broadcast masks."""
-    return torch.lerp(b, a, mask.to(a.dtype))
+def _agree(x, y, t_d):
+    """|x - y| <= t_d * min(x, y), or equal (so +inf == +inf agrees)."""
+    return (x == y).logical_or_((x - y).abs_() <= torch.minimum(x, y).mul_(t_d))
 
 
 def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: torch.Tensor,
@@ -87,29 +95,30 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
         return c1.clone()
     d0 = sanitize_depth(d0)
     d1 = sanitize_depth(d1)
-
-    near_is_0 = a <= 0.5
-    # case 2: same surface
+    # Every case of Eq. 1 is lerp(c0, c1, w) with w in {0, 1, alpha}: build w (one channel)
+    # and blend once. torch.lerp returns an endpoint exactly for w = 0 or 1.
+    near_w = 0.0 if a <= 0.5 else 1.0
     if c0.shape[-3] == 3:
         similar = brightness_difference(c0, c1) <= tb
     else:
         similar = (c0 - c1).abs_().amax(dim=-3, keepdim=True) <= tb
-    same_colour = torch.lerp(c0, c1, a)
-    same_colour = _select(similar, c0 if near_is_0 else c1, same_colour)
-    agree = (d0 == d1) | ((d0 - d1).abs_() <= torch.minimum(d0, d1).mul_(t_d))
-    # case 3: disocclusion -> farther surface
-    take0 = d0 > d1
+    both = v0 & v1
+    agree = _agree(d0, d1, t_d)
+    take0 = d0 > d1  # disagree: the farther surface
     if d_target is not None:
         dt = sanitize_depth(d_target)
-        m0 = (d0 == dt) | ((d0 - dt).abs_() <= torch.minimum(d0, dt).mul_(t_d))
-        m1 = (d1 == dt) | ((d1 - dt).abs_() <= torch.minimum(d1, dt).mul_(t_d))
+        m0 = _agree(d0, dt, t_d)
+        m1 = _agree(d1, dt, t_d)
         take0 = torch.where(m0 ^ m1, m0, take0)
-    # combine: both valid -> (agree ? same_colour : farther); else the valid one
-    use0 = (v0 & ~v1) | (v0 & v1 & ~agree & take0) | (~v0 & ~v1 & near_is_0)
-    use1 = (v1 & ~v0) | (v0 & v1 & ~agree & ~take0) | (~v0 & ~v1 & (not near_is_0))
-    out = _select(use0, c0, same_colour)
-    out = _select(use1, c1, out)
-    return out
+    w = torch.full_like(d0, a)
+    w.masked_fill_(agree & similar, near_w)
+    dis = both & ~agree
+    w.masked_fill_(dis & take0, 0.0)
+    w.masked_fill_(dis & ~take0, 1.0)
+    w.masked_fill_(v0 & ~v1, 0.0)
+    w.masked_fill_(v1 & ~v0, 1.0)
+    w.masked_fill_(~(v0 | v1), near_w)
+    return torch.lerp(c0, c1, w)
 
 
 def blend_interp_depth(d0_sample: torch.Tensor, d1_sample: torch.Tensor,
@@ -134,13 +143,12 @@ def blend_interp_depth(d0_sample: torch.Tensor, d1_sample: torch.Tensor,
     d0 = sanitize_depth(d0)
     d1 = sanitize_depth(d1)
     near0 = a <= 0.5
-    agree = (d0 == d1) | ((d0 - d1).abs_() <= torch.minimum(d0, d1).mul_(t_d))
+    agree = _agree(d0, d1, t_d)
     take0 = d0 > d1
     if d_target is not None:
         dt = sanitize_depth(d_target)
-        m0 = (d0 == dt) | ((d0 - dt).abs_() <= torch.minimum(d0, dt).mul_(t_d))
-        m1 = (d1 == dt) | ((d1 - dt).abs_() <= torch.minimum(d1, dt).mul_(t_d))
-        take0 = torch.where(m0 ^ m1, m0, take0)
+        take0 = torch.where(_agree(d0, dt, t_d) ^ _agree(d1, dt, t_d), _agree(d0, dt, t_d),
+                            take0)
     both = torch.where(agree, d0 if near0 else d1, torch.where(take0, d0, d1))
     return torch.where(v0 & v1, both, torch.where(v0, d0, torch.where(v1, d1, d0 if near0
                                                                       else d1)))

@@ -4,8 +4,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import (INF_BITS, check_alpha, check_choice, check_same, check_tensor,
-                             sanitize_depth, sanitize_mv)
+from fgcli.ops._util import (ALPHA_MAX, INF_BITS, check_alpha, check_choice, check_same,
+                             check_tensor, sanitize_depth, sanitize_mv)
 from fgcli.ops.splat import SplatResult
 
 # 3x3 neighbours in row-major order, centre excluded: indices 0..7 = shader 0,1,2,3,5,6,7,8
@@ -20,50 +20,54 @@ def _check_result(result):
 
 
 def _minpool3(d):
-    """3x3 minimum of (H, W) with out-of-image neighbours ignored."""
+    """3x3 minimum of (H, W) with out-of-image neighbours ignored (separable)."""
     h, w = d.shape
-    dp = F.pad(d[None, None], (1, 1, 1, 1), value=float("inf"))[0, 0]
-    out = d.clone()
-    for dy, dx in _NEIGH:
-        torch.minimum(out, dp[1 + dy:1 + dy + h, 1 + dx:1 + dx + w], out=out)
-    return out
+    inf = float("inf")
+    dp = F.pad(d[None, None], (1, 1, 0, 0), value=inf)[0, 0]
+    row = torch.minimum(dp[:, 0:w], dp[:, 1:w + 1])
+    torch.minimum(row, dp[:, 2:w + 2], out=row)
+    rp = F.pad(row[None, None], (0, 0, 1, 1), value=inf)[0, 0]
+    out = torch.minimum(rp[0:h], rp[1:h + 1])
+    return torch.minimum(out, rp[2:h + 2], out=out)
 
 
 def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
     h, w = res.depth.shape[-2:]
     n = h * w
     dev = res.depth.device
-    d = sanitize_depth(res.depth)[0]
+    inf = float("inf")
     valid = res.valid[0]
     hole = ~valid
-    d = d.masked_fill(hole, float("inf"))
+    d = sanitize_depth(res.depth)[0]
+    if bool(hole.any()):
+        d = d.masked_fill(hole, inf)
     to1 = res.to1.clone()
     to0 = res.to0.clone()
     depth = d.clone()[None]
     source = res.source.clone()
     filled = torch.zeros((1, h, w), dtype=torch.bool, device=dev)
     # empty pixels, and pixels with a valid neighbour nearer by more than the threshold
-    susp = hole | (_minpool3(d) < d * (1.0 - thr))
+    susp = (_minpool3(d) < d * (1.0 - thr)).logical_or_(hole)
     idx = susp.view(-1).nonzero().squeeze(1)
     if idx.numel():
-        wp = w + 2
-        dbits = d.contiguous().view(torch.int32).clamp(0, INF_BITS)
-        # non-candidates read as a key above +inf so argmin never picks them
-        dpad = F.pad(dbits[None, None], (1, 1, 1, 1), value=INF_BITS)[0, 0].reshape(-1)
-        vpad = F.pad(valid[None, None].to(torch.uint8), (1, 1, 1, 1))[0, 0].reshape(-1).bool()
-        offp = torch.tensor([dy * wp + dx for dy, dx in _NEIGH], device=dev)
+        dbits = d.contiguous().view(torch.int32).view(-1)
+        vflat = valid.reshape(-1)
         offu = torch.tensor([dy * w + dx for dy, dx in _NEIGH], device=dev)
-        y = idx // w
+        ody = torch.tensor([dy for dy, _ in _NEIGH], device=dev)
+        odx = torch.tensor([dx for _, dx in _NEIGH], device=dev)
+        y = torch.div(idx, w, rounding_mode="floor")
         x = idx - y * w
-        pc = (y + 1) * wp + (x + 1)
-        nb = pc[:, None] + offp[None, :]
-        dn = dpad[nb]  # (M, 8) int32 depth bits
-        vn = vpad[nb]
+        ny = y[:, None] + ody[None, :]  # (M, 8)
+        nx = x[:, None] + odx[None, :]
+        inb = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+        nb = (ny.clamp_(0, h - 1) * w).add_(nx.clamp_(0, w - 1))
+        # out-of-image neighbours: depth +inf and invalid, never candidates
+        dn = dbits[nb].masked_fill_(~inb, INF_BITS)  # (M, 8) int32 depth bits
+        vn = vflat[nb] & inb
         dc = d.view(-1)[idx]
         hc = hole.view(-1)[idx]
         limit = dc * (1.0 - thr)
-        dnf = dn.view(torch.float32)
-        cand = vn & ((dnf < limit[:, None]) | hc[:, None])
+        cand = vn & ((dn.view(torch.float32) < limit[:, None]) | hc[:, None])
         nc = ~cand
         keep = torch.zeros_like(hc)
         for i, j, k in _BLOCKS:
@@ -72,6 +76,7 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
         if bool(sel.any()):
             tgt = idx[sel]
             c_sel = cand[sel]
+            # non-candidates get a key above +inf so argmin never picks them
             key = dn[sel].masked_fill(~c_sel, 0x7FFFFFFF)
             k = key.argmin(dim=1)  # nearest candidate; ties -> first in row-major order
             srcpix = tgt + offu[k]
@@ -81,8 +86,7 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
                 to1.view(2, -1)[:, tgt] = t1[:, srcpix]
                 to0.view(2, -1)[:, tgt] = t0[:, srcpix]
             else:  # mean of the candidates' vectors (the paper's "mean filter")
-                nbu = tgt[:, None] + offu[None, :]
-                nbu = nbu.clamp_(0, n - 1)  # out-of-image neighbours are never candidates
+                nbu = (tgt[:, None] + offu[None, :]).clamp_(0, n - 1)  # OOB: not candidates
                 wgt = c_sel.to(torch.float32)
                 cnt = wgt.sum(1)
                 for dst, srcf in ((to1, t1), (to0, t0)):
@@ -93,17 +97,16 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
             filled.view(-1)[tgt] = True
     new_valid = valid[None] | filled
     holes = ~new_valid
-    if fallback_mv is not None and bool(holes.any()):
-        m = sanitize_mv(fallback_mv)
-        a = res.alpha
-        if res.mode == "interp":
-            c1, c0 = -(1.0 - a), a
-        else:
-            c1, c0 = a, 1.0 + a
-        to1 = torch.where(holes, m * c1, to1)
-        to0 = torch.where(holes, m * c0, to0)
-        if fallback_depth is not None:
-            depth = torch.where(holes, sanitize_depth(fallback_depth), depth)
+    if fallback_mv is not None:
+        hidx = holes.view(-1).nonzero().squeeze(1)
+        if hidx.numel():
+            m = sanitize_mv(fallback_mv).reshape(2, -1)[:, hidx]
+            a = res.alpha
+            c1, c0 = (-(1.0 - a), a) if res.mode == "interp" else (a, 1.0 + a)
+            to1.view(2, -1)[:, hidx] = m * c1
+            to0.view(2, -1)[:, hidx] = m * c0
+            if fallback_depth is not None:
+                depth.view(-1)[hidx] = sanitize_depth(fallback_depth).reshape(-1)[hidx]
     return res.replace(to1=to1, to0=to0, depth=depth, valid=new_valid, source=source,
                        filled=filled, holes=holes)
 
@@ -205,7 +208,7 @@ def extrap_hole_fill(mv1: torch.Tensor, depth1: torch.Tensor, to1: torch.Tensor,
         mv1: (2, H, W) frame-1 vectors. depth1: (1, H, W) frame-1 depth (the one the splat
             used, usually dilated). to1: (2, H, W) splatted/refined offsets to frame 1.
         valid: (1, H, W) bool, False at holes. depth_target: (1, H, W) splatted depth.
-        alpha: extrapolation distance (>= 0). depth_threshold_rel: relative margin.
+        alpha: extrapolation distance (0 ... 1e6). depth_threshold_rel: relative margin.
         (All may carry a leading batch dim.)
 
     Returns:
@@ -220,7 +223,7 @@ def extrap_hole_fill(mv1: torch.Tensor, depth1: torch.Tensor, to1: torch.Tensor,
     depth_target = check_tensor(depth_target, "depth_target", 1)
     check_same(mv1, "mv1", (depth1, "depth1"), (to1, "to1"), (valid, "valid"),
                (depth_target, "depth_target"))
-    a = check_alpha(alpha, hi=None)
+    a = check_alpha(alpha, hi=ALPHA_MAX)
     thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
     if mv1.dim() == 4:
         outs = [_extrap_fill_frame(mv1[i], depth1[i], to1[i], valid[i], depth_target[i], a, thr)
@@ -242,7 +245,19 @@ def fill_extrap_holes(result: SplatResult, mv1: torch.Tensor, depth1: torch.Tens
         raise ValueError(f"fill_extrap_holes: needs an 'extrap' SplatResult, got {result.mode!r}")
     to1, depth, filled = extrap_hole_fill(mv1, depth1, result.to1, result.valid, result.depth,
                                           result.alpha, depth_threshold_rel)
-    from fgcli.ops.warp import sample_nearest
-    m_at, _ = sample_nearest(sanitize_mv(check_tensor(mv1, "mv1", 2)), to1)
-    to0 = torch.where(filled, to1 + m_at, result.to0)
+    mv1 = sanitize_mv(check_tensor(mv1, "mv1", 2))
+    to0 = result.to0.clone()
+    frames = [(to0, to1, mv1, filled)] if to1.dim() == 3 else \
+        [(to0[i], to1[i], mv1[i], filled[i]) for i in range(to1.shape[0])]
+    for t0, t1, m, f in frames:  # to0 = to1 + mv1(q + to1) at the filled holes only
+        h, w = t1.shape[-2:]
+        hidx = f.view(-1).nonzero().squeeze(1)
+        if hidx.numel() == 0:
+            continue
+        y = torch.div(hidx, w, rounding_mode="floor")
+        x = hidx - y * w
+        v = t1.reshape(2, -1)[:, hidx]
+        ix = (x.to(torch.float32) + v[0] + 0.5).floor_().clamp_(0, w - 1).long()
+        iy = (y.to(torch.float32) + v[1] + 0.5).floor_().clamp_(0, h - 1).long()
+        t0.view(2, -1)[:, hidx] = v + m.reshape(2, -1)[:, iy * w + ix]
     return result.replace(to1=to1, to0=to0, depth=depth, holes=filled)

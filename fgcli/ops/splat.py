@@ -11,41 +11,47 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import torch
-import torch.nn.functional as F
 
-from fgcli.ops._util import (INF_BITS, check_alpha, check_choice, check_same, check_tensor,
-                             grid, sanitize_depth, sanitize_mv)
+from fgcli.ops._util import (ALPHA_MAX, EXACT_F32, aux, check_alpha, check_choice,
+                             check_same, check_tensor, gather_pixels, inside_mask,
+                             nearest_index, sanitize_depth, sanitize_mv)
 
 I64_MAX = (1 << 63) - 1
-_LOW32 = 0xFFFFFFFF
 
 
 # ----------------------------------------------------------------------------- dilation
 
 def _dilate_frame(depth, mv, radius):
     h, w = depth.shape[-2:]
-    d = sanitize_depth(depth)[0]
+    d = sanitize_depth(depth)[0].contiguous()
+    mv = sanitize_mv(mv)
     if radius == 0:
         return d[None].clone(), mv.clone()
     r = radius
-    dp = F.pad(d[None, None], (r, r, r, r), value=float("inf"))[0, 0]
-    best = d.clone()
-    choice = torch.zeros((h, w), dtype=torch.uint8, device=d.device)
-    offs = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1) if (dy, dx) != (0, 0)]
-    table = [0]
-    for k, (dy, dx) in enumerate(offs, 1):
-        cand = dp[r + dy:r + dy + h, r + dx:r + dx + w]
-        better = cand < best  # strict: the centre, then the earlier offset, wins ties
-        torch.minimum(best, cand, out=best)
-        choice.masked_fill_(better, k)
-        table.append(dy * w + dx)
-    if not bool(choice.any()):
-        return best[None], mv.clone()
-    tab = torch.tensor(table, dtype=torch.int64, device=d.device)
-    idx = tab[choice.view(-1).long()]
-    idx += torch.arange(h * w, device=d.device)
-    mv_d = torch.gather(mv.reshape(2, -1), 1, idx.view(1, -1).expand(2, -1)).view(2, h, w)
-    return best[None], mv_d
+    a = aux(h, w, d.device)
+    # key = float32 bits of the (non-negative) depth << 32 | flat index: the minimum over
+    # a window is the nearest pixel, ties going to the lowest index; separable min.
+    key = _pack_key(d, a).view(h, w)
+    # (F.pad would round an int64 fill value through float)
+    kp = torch.full((h, w + 2 * r), I64_MAX, dtype=torch.int64, device=d.device)
+    kp[:, r:r + w] = key
+    rowmin = kp[:, 0:w].clone()
+    for k in range(1, 2 * r + 1):
+        torch.minimum(rowmin, kp[:, k:k + w], out=rowmin)
+    kp = torch.full((h + 2 * r, w), I64_MAX, dtype=torch.int64, device=d.device)
+    kp[r:r + h] = rowmin
+    best = kp[0:h].clone()
+    for k in range(1, 2 * r + 1):
+        torch.minimum(best, kp[k:k + h], out=best)
+    halves = best.view(torch.int32).view(h, w, 2)  # little-endian: [low, high]
+    nearest_bits = halves[..., 1]
+    idx = halves[..., 0].contiguous()
+    # ties with the centre pixel keep the centre (FSR 2 / Mob-FGSR iterate from the centre)
+    centre = nearest_bits == d.view(torch.int32)
+    idx = torch.where(centre, a["ar32"].view(h, w), idx)
+    depth_d = nearest_bits.contiguous().view(torch.float32)[None]
+    mv_d = gather_pixels(mv, idx.view(-1)).view(2, h, w)
+    return depth_d, mv_d
 
 
 def dilate_nearest_depth(depth: torch.Tensor, mv: torch.Tensor, radius: int = 1):
@@ -53,9 +59,9 @@ def dilate_nearest_depth(depth: torch.Tensor, mv: torch.Tensor, radius: int = 1)
 
     Each pixel takes the depth and the motion vector of the nearest (smallest depth) pixel
     of its (2r+1) x (2r+1) window, so the vectors of thin or edge foreground pixels cover
-    their silhouette. Ties go to the centre pixel, then to the first offset in row-major
-    order (deterministic). Out-of-image neighbours are ignored. Sky (+inf) never wins over
-    geometry; an all-sky window keeps the centre.
+    their silhouette. Ties go to the centre pixel, then to the lowest flat index (first in
+    row-major order; deterministic). Out-of-image neighbours are ignored. Sky (+inf) never
+    wins over geometry; an all-sky window keeps the centre. NaN vectors read as 0.
 
     Args:
         depth: (1, H, W) or (B, 1, H, W) linear depth (> 0, +inf sky). NaN is read as +inf
@@ -94,7 +100,7 @@ class SplatResult:
         +inf where nothing splatted.
     valid: (1, H, W) bool: the target received a splat (after gap_fill: or was filled
         from a neighbour).
-    source: (1, H, W) int64 flat index (y * W + x) in frame 1 of the source pixel; -1 none.
+    source: (1, H, W) int32 flat index (y * W + x) in frame 1 of the source pixel; -1 none.
     alpha: the generated time is alpha (mode 'interp') or 1 + alpha ('extrap').
     mode: 'interp' or 'extrap'.
     filled: (1, H, W) bool or None: pixels changed by gap filling (refinement).
@@ -151,94 +157,92 @@ def motion_coefficients(alpha: float, model: str, mode: str) -> tuple[float, flo
     return -a, 0.0
 
 
-def _fetch_nearest(field, px, py):
-    """field (C,H,W) at index positions (px, py) (H,W), nearest pixel; + inside mask."""
-    c, h, w = field.shape
-    inside = (px >= -0.5) & (px < w - 0.5) & (py >= -0.5) & (py < h - 0.5)
-    ix = torch.floor(px + 0.5).clamp_(0, w - 1).to(torch.int64)
-    iy = torch.floor(py + 0.5).clamp_(0, h - 1).to(torch.int64)
-    idx = iy.mul_(w).add_(ix).view(1, -1)
-    out = torch.gather(field.reshape(c, -1), 1, idx.expand(c, -1)).view(c, h, w)
-    return out, inside
+def _pack_key(d, ax):
+    """int64 keys ``float32_bits(d) << 32 | flat_index`` for a non-negative (1, H, W) depth
+    without NaN, written through an int32 view (two strided copies)."""
+    n = d.numel()
+    key = torch.empty(n, dtype=torch.int64, device=d.device)
+    k32 = key.view(torch.int32).view(n, 2)  # little-endian: [low, high]
+    k32[:, 0] = ax["ar32"]
+    k32[:, 1] = d.reshape(-1).view(torch.int32)
+    return key
 
 
-def _splat_frame(depth1, mv1, mv0, alpha, model, mode, mv0_fetch, depth0=None,
-                 depth0_tol=0.05):
+def _splat_frame(depth1, mv1, mv0, alpha, model, mode, depth0=None, depth0_tol=0.05):
     h, w = depth1.shape[-2:]
     n = h * w
     dev = depth1.device
-    d = sanitize_depth(depth1)
+    ax = aux(h, w, dev)
+    d = sanitize_depth(depth1).contiguous()
     a = sanitize_mv(mv1)
-    gx, gy = grid(h, w, dev)
     ca, cb = motion_coefficients(alpha, model if mv0 is not None else "linear", mode)
     if cb != 0.0:
-        px = gx + a[0]
-        py = gy + a[1]
-        m0 = sanitize_mv(mv0)
-        if mv0_fetch == "nearest":
-            b, inside = _fetch_nearest(m0, px, py)
-        else:
-            from fgcli.ops.warp import backward_warp
-            b, inside = backward_warp(m0, a, mode="bilinear", border="clamp")
-            inside = inside[0]
-        use_b = inside
-        if depth0 is not None:  # b must belong to the same surface: depths agree
-            d0s, _ = _fetch_nearest(sanitize_depth(depth0), px, py)
+        # b = frame 0's vector where the surface was in frame 0 (nearest pixel, as the
+        # public code's splat pass); linear where that is off-screen or another surface
+        idx0 = nearest_index(a, h, w)
+        use = inside_mask(a, h, w)
+        b = gather_pixels(sanitize_mv(mv0), idx0).view(2, h, w)
+        if depth0 is not None:
+            d0s = gather_pixels(sanitize_depth(depth0), idx0).view(h, w)
             d1s = d[0]
-            d0s = d0s[0]
-            use_b = use_b & ((d0s == d1s) | ((d0s - d1s).abs_() <= torch.minimum(d0s, d1s)
-                                                                  .mul_(depth0_tol)))
-        b = torch.where(use_b[None], b, a)  # frame-0 position off-screen: linear motion
-        disp = a * ca
-        disp.add_(b, alpha=cb)
+            same = (d0s == d1s).logical_or_(
+                (d0s - d1s).abs_() <= torch.minimum(d0s, d1s).mul_(depth0_tol))
+            use.logical_and_(same)
+        b = torch.lerp(a, b, use.to(torch.float32))  # exact 0/1 select, values finite
+        disp = b.mul_(cb).add_(a, alpha=ca)
     else:
         disp = a * ca
-    # offsets from the target position to frame 1 and frame 0, per source pixel
-    to1_src = -disp
-    to0_src = a - disp
-    tx = disp[0] + gx
-    ty = disp[1] + gy
-    # nearest target pixel; positions are finite (|mv| <= 1e6) so the casts are safe
-    qx = torch.floor(tx.add_(0.5))
-    qy = torch.floor(ty.add_(0.5))
-    inb = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
-    q = qy.to(torch.int64).mul_(w).add_(qx.to(torch.int64))
-    q.masked_fill_(~inb, n)  # off-screen sources go to a dummy slot
+    # target pixel (nearest to p1 + disp, ties round up), clamped into a one-pixel ring
+    # around the image that collects everything off-screen and is discarded
+    w2, h2 = w + 2, h + 2
+    qx = torch.add(disp[0], ax["xh"]).floor_().clamp_(-1, w).add_(1)
+    qy = torch.add(disp[1], ax["yh"]).floor_().clamp_(-1, h).add_(1)
+    if h2 * w2 < EXACT_F32:
+        q = qy.mul_(w2).add_(qx).view(-1).to(torch.int64)
+    else:
+        q = qy.to(torch.int64).mul_(w2).add_(qx.to(torch.int64)).view(-1)
     # key: float32 bits of the (non-negative) depth are monotonic in the depth, +inf
     # included; the low 32 bits carry the source index (nearest surface wins, ties go to
     # the lowest index, deterministically)
-    key = d.view(torch.int32).to(torch.int64).clamp_(0, INF_BITS).bitwise_left_shift_(32)
-    key.view(-1).add_(torch.arange(n, device=dev))
-    buf = torch.full((n + 1,), I64_MAX, dtype=torch.int64, device=dev)
-    buf.scatter_reduce_(0, q.view(-1), key.view(-1), reduce="amin", include_self=True)
-    win = buf[:n]
-    valid = win != I64_MAX
-    src = win.bitwise_and(_LOW32)
-    src.masked_fill_(~valid, 0)
-    depth_t = win.bitwise_right_shift(32).to(torch.int32).view(torch.float32)
-    depth_t = depth_t.masked_fill(~valid, float("inf")).view(1, h, w)
-    gi = src.view(1, -1).expand(2, -1)
-    inv = ~valid.view(1, h, w)
-    to1 = torch.gather(to1_src.view(2, -1), 1, gi).view(2, h, w).masked_fill_(inv, 0.0)
-    to0 = torch.gather(to0_src.view(2, -1), 1, gi).view(2, h, w).masked_fill_(inv, 0.0)
-    source = src.masked_fill_(~valid, -1).view(1, h, w)
-    return SplatResult(to1=to1, to0=to0, depth=depth_t, valid=valid.view(1, h, w),
-                       source=source, alpha=float(alpha), mode=mode)
+    key = _pack_key(d, ax)
+    buf = torch.full((h2 * w2,), I64_MAX, dtype=torch.int64, device=dev)
+    buf.scatter_reduce_(0, q, key, reduce="amin", include_self=True)
+    win = buf.view(h2, w2)[1:h + 1, 1:w + 1]
+    halves = win.view(torch.int32).view(h, w, 2)  # little-endian: [low, high]
+    src = halves[..., 0].contiguous()  # -1 (low word of I64_MAX) where nothing landed
+    valid = src >= 0
+    # high word: depth bits; NaN (0x7FFFFFFF) exactly where nothing landed -> +inf
+    inf = float("inf")
+    depth_t = torch.nan_to_num(halves[..., 1].contiguous().view(torch.float32),
+                               nan=inf, posinf=inf)[None]
+    # per-source offsets to frame 1 and frame 0, with one trailing zero entry that the
+    # empty targets (src = -1 -> n) read
+    s1 = torch.empty((2, n + 1), dtype=torch.float32, device=dev)
+    s0 = torch.empty((2, n + 1), dtype=torch.float32, device=dev)
+    s1[:, n] = 0.0
+    s0[:, n] = 0.0
+    torch.neg(disp.view(2, n), out=s1[:, :n])  # p1 - p_t
+    torch.sub(a.reshape(2, n), disp.view(2, n), out=s0[:, :n])  # p1 + a - p_t
+    gi = src.view(-1).remainder(n + 1)
+    to1 = gather_pixels(s1, gi).view(2, h, w)
+    to0 = gather_pixels(s0, gi).view(2, h, w)
+    return SplatResult(to1=to1, to0=to0, depth=depth_t, valid=valid[None], source=src[None],
+                       alpha=float(alpha), mode=mode)
 
 
 def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | None,
                  alpha: float, model: str = "quadratic", mode: str = "interp",
-                 mv0_fetch: str = "nearest", depth0: torch.Tensor | None = None,
+                 depth0: torch.Tensor | None = None,
                  depth0_tol_rel: float = 0.05) -> SplatResult:
     """Forward-splat frame 1's motion to the generated time (Mob-FGSR section 3.3).
 
     For every source pixel p1 of frame 1, with a = mv1(p1) and b = mv0(p1 + a) (frame 0's
-    vector where the surface was in frame 0; fetched 'nearest' (default, as the public
-    code's splat pass) or 'bilinear'; off-screen -> b = a, i.e. linear):
+    vector where the surface was in frame 0, nearest pixel as the public code's splat
+    pass; off-screen -> b = a, i.e. linear):
       * interp, time alpha in [0, 1]:
         quadratic ``p_alpha = p1 + ((1-alpha)(2+alpha)/2) a - (alpha(1-alpha)/2) b``,
         linear ``p_alpha = p1 + (1-alpha) a``;
-      * extrap, time 1 + alpha (alpha >= 0):
+      * extrap, time 1 + alpha (0 <= alpha <= 1e6):
         quadratic ``p = p1 - (alpha(3+alpha)/2) a + (alpha(1+alpha)/2) b``,
         linear ``p = p1 - alpha a``.
     With mv0 None the linear model is used. b read from frame 0 may belong to another
@@ -275,16 +279,15 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
     check_choice(model, "model", ("linear", "quadratic"))
     check_choice(mode, "mode", ("interp", "extrap"))
-    check_choice(mv0_fetch, "mv0_fetch", ("nearest", "bilinear"))
-    a = check_alpha(alpha, hi=1.0 if mode == "interp" else None)
-    if depth1.shape[-2] * depth1.shape[-1] >= 2 ** 31:
+    a = check_alpha(alpha, hi=1.0 if mode == "interp" else ALPHA_MAX)
+    if (depth1.shape[-2] + 2) * (depth1.shape[-1] + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
     if depth1.dim() == 4:
         return SplatResult.stack([
             _splat_frame(depth1[i], mv1[i], None if mv0 is None else mv0[i], a, model, mode,
-                         mv0_fetch, None if depth0 is None else depth0[i], tol)
+                         None if depth0 is None else depth0[i], tol)
             for i in range(depth1.shape[0])])
-    return _splat_frame(depth1, mv1, mv0, a, model, mode, mv0_fetch, depth0, tol)
+    return _splat_frame(depth1, mv1, mv0, a, model, mode, depth0, tol)
 
 
 def generated_mv(result: SplatResult) -> torch.Tensor:

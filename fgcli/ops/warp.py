@@ -11,48 +11,31 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import (check_alpha, check_choice, check_same, check_tensor, grid,
-                             per_frame, sanitize_mv, sanitize_values)
+from fgcli.ops._util import (ALPHA_MAX, EXACT_F32, aux, check_alpha, check_choice,
+                             check_same, check_tensor, gather_pixels, grid, inside_mask,
+                             nearest_index, per_frame, sanitize_flow_positions, sanitize_mv,
+                             sanitize_values)
 
 WARP_MODES = ("bilinear", "catmull-rom", "nearest")
 BORDERS = ("clamp", "zeros")
 
 
-def _positions(flow: torch.Tensor, h: int, w: int):
-    """Sample positions (index coords) for a (2, H, W) flow, the in-image mask, and
-    sanitised copies of the positions safe for index arithmetic (NaN -> outside, +-inf and
-    huge values clamped to a few pixels outside the image)."""
-    gx, gy = grid(h, w, flow.device)
-    sx = flow[0] + gx
-    sy = flow[1] + gy
-    # inside the image rectangle [0, W) x [0, H) in pixel coords == [-0.5, W-0.5) in index
-    valid = (sx >= -0.5) & (sx < w - 0.5) & (sy >= -0.5) & (sy < h - 0.5)
-    sx.nan_to_num_(nan=-8.0).clamp_(-8.0, w + 8.0)
-    sy.nan_to_num_(nan=-8.0).clamp_(-8.0, h + 8.0)
-    return sx, sy, valid
-
-
-def _nearest(img, sx, sy, border):
+def _nearest(img, flow, valid, border):
     c, h, w = img.shape
-    ix = torch.floor(sx + 0.5).to(torch.int64)
-    iy = torch.floor(sy + 0.5).to(torch.int64)
+    idx = nearest_index(flow, h, w)
+    out = gather_pixels(img, idx).view(c, h, w)
     if border == "zeros":
-        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
-    ix.clamp_(0, w - 1)
-    iy.clamp_(0, h - 1)
-    idx = iy.mul_(w).add_(ix).view(1, -1)
-    out = torch.gather(img.reshape(c, -1), 1, idx.expand(c, -1)).view(c, h, w)
-    if border == "zeros":
-        out = out.masked_fill_(~inside, 0.0)
+        out.masked_fill_(~valid, 0.0)
     return out
 
 
-def _bilinear(img, sx, sy, border, zero_flow):
+def _bilinear(img, flow, border, zero_flow):
     c, h, w = img.shape
+    a = aux(h, w, img.device)
     g = torch.empty((1, h, w, 2), dtype=torch.float32, device=img.device)
-    # normalised coords for align_corners=False: (s + 0.5) * 2 / size - 1
-    torch.mul(sx, 2.0 / w, out=g[0, :, :, 0]).add_(1.0 / w - 1.0)
-    torch.mul(sy, 2.0 / h, out=g[0, :, :, 1]).add_(1.0 / h - 1.0)
+    # normalised coords for align_corners=False: (x + 0.5 + f) * 2 / size - 1
+    torch.add(a["gxn"], flow[0], alpha=2.0 / w, out=g[0, :, :, 0])
+    torch.add(a["gyn"], flow[1], alpha=2.0 / h, out=g[0, :, :, 1])
     out = F.grid_sample(img[None], g, mode="bilinear",
                         padding_mode="border" if border == "clamp" else "zeros",
                         align_corners=False)[0]
@@ -73,46 +56,53 @@ def _cr_weights(t):
     return (w0, w1, w2, w3)
 
 
-def _catmull_rom(img, sx, sy, border):
+def _catmull_rom(img, flow, border):
     c, h, w = img.shape
     pad = 2 if border == "zeros" else 0
     src = F.pad(img, (pad, pad, pad, pad)) if pad else img
     hs, ws = h + 2 * pad, w + 2 * pad
-    flat = src.reshape(c, -1)
+    gx, gy = grid(h, w, img.device)
+    sx = flow[0] + gx
+    sy = flow[1] + gy
     x0f = torch.floor(sx)
     y0f = torch.floor(sy)
-    wxs = _cr_weights(sx - x0f)
-    wys = _cr_weights(sy - y0f)
-    x0 = x0f.to(torch.int64) + pad
-    y0 = y0f.to(torch.int64) + pad
+    wxs = _cr_weights(sx.sub_(x0f))
+    wys = _cr_weights(sy.sub_(y0f))
+    big = hs * ws >= EXACT_F32
+    dt = torch.float64 if big else torch.float32
+    x0 = x0f.to(dt).add_(pad)
+    y0 = y0f.to(dt).add_(pad)
     xs = [(x0 + k).clamp_(0, ws - 1) for k in (-1, 0, 1, 2)]
     ys = [(y0 + k).clamp_(0, hs - 1).mul_(ws) for k in (-1, 0, 1, 2)]
+    itype = torch.int64 if hs * ws >= 2 ** 31 else torch.int32
     out = None
     lo = hi = None
     for j in range(4):
         row = None
         for i in range(4):
-            v = torch.gather(flat, 1, (ys[j] + xs[i]).view(1, -1).expand(c, -1)).view(c, h, w)
+            idx = (ys[j] + xs[i]).view(-1).to(itype)
+            v = gather_pixels(src, idx).view(c, h, w)
             if j in (1, 2) and i in (1, 2):  # the 2x2 bilinear footprint: clamp range
-                lo = v if lo is None else torch.minimum(lo, v)
-                hi = v if hi is None else torch.maximum(hi, v)
-            row = v * wxs[i] if row is None else row.addcmul_(v, wxs[i].expand_as(v))
+                lo = v.clone() if lo is None else torch.minimum(lo, v, out=lo)
+                hi = v.clone() if hi is None else torch.maximum(hi, v, out=hi)
+            row = v.mul_(wxs[i]) if row is None else row.addcmul_(v, wxs[i].expand_as(v))
         out = row.mul_(wys[j]) if out is None else out.addcmul_(row, wys[j].expand_as(row))
     # negative lobes ring around HDR edges: clamp to the 2x2 neighbourhood range
-    return torch.maximum(torch.minimum(out, hi), lo)
+    return torch.maximum(torch.minimum(out, hi, out=out), lo, out=out)
 
 
 def _warp_frame(img, flow, mode, border):
     c, h, w = img.shape
     img = sanitize_values(img)
-    sx, sy, valid = _positions(flow, h, w)
+    valid = inside_mask(flow, h, w)
+    f = sanitize_flow_positions(flow)
     if mode == "nearest":
-        out = _nearest(img, sx, sy, border)
+        out = _nearest(img, f, valid, border)
     elif mode == "bilinear":
-        zero = (flow[0] == 0) & (flow[1] == 0)
-        out = _bilinear(img, sx, sy, border, zero if bool(zero.any()) else None)
+        zero = (f[0] == 0).logical_and_(f[1] == 0)
+        out = _bilinear(img, f, border, zero if bool(zero.any()) else None)
     else:
-        out = _catmull_rom(img, sx, sy, border)
+        out = _catmull_rom(img, f, border)
     return out, valid[None]
 
 
@@ -136,8 +126,9 @@ def backward_warp(img: torch.Tensor, flow: torch.Tensor, mode: str = "bilinear",
 
     Zero flow returns the input exactly (bit-exact) in every mode. Non-finite input values
     are sanitised: NaN -> 0, +-inf -> +-1e30 (finite; still "very far" for depth), so the
-    output is always finite. NaN flow reads outside (valid False); huge flows are clamped
-    to +-1e6 px. Inputs are never modified.
+    output is always finite. NaN flow reads outside (valid False); +-inf and huge flows
+    are clamped to +-4e6 px (off-screen). Inputs are never modified. 'catmull-rom' costs
+    ~10x 'bilinear' on CPU (16 gathers per channel).
     """
     img = check_tensor(img, "img")
     flow = check_tensor(flow, "flow", 2)
@@ -160,10 +151,9 @@ def sample_nearest(img: torch.Tensor, flow: torch.Tensor) -> tuple[torch.Tensor,
     check_same(img, "img", (flow, "flow"))
 
     def one(i, f):
-        f = sanitize_mv(f)
         c, h, w = i.shape
-        sx, sy, valid = _positions(f, h, w)
-        out = _nearest(i, sx, sy, "clamp")
+        valid = inside_mask(f, h, w)
+        out = gather_pixels(i, nearest_index(sanitize_flow_positions(f), h, w)).view(c, h, w)
         if bool(torch.isnan(out.sum())):
             inf = float("inf")
             out = torch.nan_to_num(out, nan=inf, posinf=inf, neginf=-inf)
@@ -208,10 +198,10 @@ def mv_warp_extrap(c1: torch.Tensor, mv1: torch.Tensor, alpha: float,
     Content keeps moving the way it moved from frame 0 to 1 (by -mv1 per frame), so at time
     1 + alpha the pixel q shows approximately what was at q + alpha * mv1(q) in frame 1
     (vector field taken at q, i.e. treated as static). Shapes: c1 (C, H, W), mv1 (2, H, W)
-    [or batched]; returns (C, H, W). alpha >= 0; alpha == 0 returns c1 exactly.
+    [or batched]; returns (C, H, W). 0 <= alpha <= 1e6; alpha == 0 returns c1 exactly.
     """
     c1 = check_tensor(c1, "c1")
     mv1 = check_tensor(mv1, "mv1", 2)
     check_same(c1, "c1", (mv1, "mv1"))
-    a = check_alpha(alpha, hi=None)
+    a = check_alpha(alpha, hi=ALPHA_MAX)
     return backward_warp(c1, sanitize_mv(mv1) * a, mode)[0]

@@ -185,7 +185,8 @@ class CameraPath:
         elif k == "pan":
             yaw = math.radians(self.angle + self.speed * s)
             pt = math.radians(self.pitch)
-            d = np.array([-math.sin(yaw) * math.cos(pt), math.sin(pt), -math.cos(yaw) * math.cos(pt)])
+            cp = math.cos(pt)
+            d = np.array([-math.sin(yaw) * cp, math.sin(pt), -math.cos(yaw) * cp])
             pos = self.position.copy()
             tgt = pos + d
         elif k == "dolly":

@@ -15,8 +15,9 @@ COLUMNS = ("first", "middle", "last", "depth", "motion")
 
 def _srgb8(color: np.ndarray) -> np.ndarray:
     """(3, H, W) linear -> (H, W, 3) uint8 sRGB."""
-    x = np.clip(np.transpose(color, (1, 2, 0)), 0.0, 1.0)
-    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
+    from fgcli.ops.color import srgb_oetf
+
+    x = srgb_oetf(np.transpose(color, (1, 2, 0)))
     return np.ascontiguousarray((x * 255.0 + 0.5).astype(np.uint8))
 
 
@@ -41,15 +42,19 @@ def _motion8(mv: np.ndarray) -> np.ndarray:
     dx, dy = mv[0], mv[1]
     mag = np.hypot(dx, dy)
     ang = (np.degrees(np.arctan2(dy, dx)) % 360) / 2
-    hsv = np.stack([ang, np.full_like(ang, 255), np.clip(mag / (0.04 * mv.shape[2]), 0, 1) * 255], -1)
+    val = np.clip(mag / (0.04 * mv.shape[2]), 0, 1) * 255
+    hsv = np.stack([ang, np.full_like(ang, 255), val], -1)
     return np.ascontiguousarray(cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB))
 
 
 def _label(img: np.ndarray, text: str) -> None:
+    """White text on a darkened strip along the top of the tile."""
     import cv2
 
-    for col, th in (((0, 0, 0), 3), ((255, 255, 255), 1)):
-        cv2.putText(img, text, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, col, th, cv2.LINE_AA)
+    strip = img[:17]
+    strip[:] = (strip.astype(np.uint16) * 2 // 5).astype(np.uint8)
+    cv2.putText(img, text, (4, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1,
+                cv2.LINE_AA)
 
 
 def contact_sheet(scenes: list[Scene], spp: int | None = None, gap: int = 4) -> np.ndarray:
@@ -72,7 +77,8 @@ def contact_sheet(scenes: list[Scene], spp: int | None = None, gap: int = 4) -> 
         _label(m, "motion vectors")
         tiles += [d, m]
         h = max(x.shape[0] for x in tiles)
-        pad = [np.pad(x, ((0, h - x.shape[0]), (0, gap), (0, 0)), constant_values=255) for x in tiles]
+        pad = [np.pad(x, ((0, h - x.shape[0]), (0, gap), (0, 0)), constant_values=255)
+               for x in tiles]
         rows.append(np.concatenate(pad, 1)[:, :-gap])
     w = max(r.shape[1] for r in rows)
     rows = [np.pad(r, ((0, gap), (0, w - r.shape[1]), (0, 0)), constant_values=255) for r in rows]

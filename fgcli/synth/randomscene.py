@@ -15,7 +15,7 @@ def _r(x, nd=4):
     return round(float(x), nd)
 
 
-def _color(rng, lo=0.15, hi=0.9):
+def _color(rng, lo=0.15, hi=0.8):
     return _r(rng.uniform(lo, hi, 3))
 
 
@@ -73,7 +73,8 @@ def random_scene(seed: int, size=(128, 72), frames: int = 9, fps: float = 24.0,
     reflect = "reflection" in effects
     transl = "translucency" in effects
     anim = "texture_animation" in effects
-    objects = [{"name": "ground", "type": "plane", "texture": _texture(rng, anim and rng.random() < 0.3),
+    objects = [{"name": "ground", "type": "plane",
+                "texture": _texture(rng, anim and rng.random() < 0.3),
                 "roughness": _r(rng.uniform(0.4, 1.0)), "specular": 0.1}]
     if reflect and rng.random() < 0.5:
         objects[0]["mirror"] = _r(rng.uniform(0.1, 0.4))
@@ -113,7 +114,7 @@ def random_scene(seed: int, size=(128, 72), frames: int = 9, fps: float = 24.0,
             ob["opacity"] = _r(rng.uniform(0.25, 0.7))
         objects.append(ob)
     kind = str(rng.choice(["static", "orbit", "pan", "dolly", "keyframes"]))
-    dist = rng.uniform(6.5, 9.0)
+    dist = rng.uniform(5.0, 7.5)
     height = rng.uniform(1.0, 3.0)
     ang = rng.uniform(-40, 40)
     pos = [dist * np.sin(np.radians(ang)), height, dist * np.cos(np.radians(ang))]
@@ -125,7 +126,8 @@ def random_scene(seed: int, size=(128, 72), frames: int = 9, fps: float = 24.0,
                "angle": _r(ang), "speed": _r(rng.uniform(-40, 40))}
     elif kind == "pan":
         # yaw = ang faces the origin at s = 0
-        cam = {"type": "pan", "position": _r(pos), "yaw": _r(ang), "speed": _r(rng.uniform(-25, 25)),
+        cam = {"type": "pan", "position": _r(pos), "yaw": _r(ang),
+               "speed": _r(rng.uniform(-25, 25)),
                "pitch": _r(-np.degrees(np.arctan2(height - 0.6, dist)))}
     elif kind == "dolly":
         cam = {"type": "dolly", "position": _r(pos), "target": target,
@@ -134,10 +136,12 @@ def random_scene(seed: int, size=(128, 72), frames: int = 9, fps: float = 24.0,
         p2 = np.asarray(pos) + rng.uniform(-1.5, 1.5, 3) * [1, 0.3, 0.5]
         cam = {"type": "keyframes", "keys": [
             {"time": 0.0, "position": _r(pos), "target": target},
-            {"time": 1.0, "position": _r(p2), "target": _r(np.asarray(target) + rng.uniform(-0.5, 0.5, 3))}]}
+            {"time": 1.0, "position": _r(p2),
+             "target": _r(np.asarray(target) + rng.uniform(-0.5, 0.5, 3))}]}
     cam["fov"] = _r(rng.uniform(40, 60))
-    lights = [{"type": "directional", "direction": _r([rng.uniform(-1, 1), -1.0, rng.uniform(-1, 1)]),
-               "intensity": _r(rng.uniform(1.0, 1.8))}]
+    lights = [{"type": "directional",
+               "direction": _r([rng.uniform(-1, 1), -1.0, rng.uniform(-1, 1)]),
+               "intensity": _r(rng.uniform(0.9, 1.5))}]
     if rng.random() < 0.4:
         lights[0]["motion"] = {"type": "rotate", "axis": [0.0, 1.0, 0.0],
                                "speed": _r(rng.uniform(-60, 60))}

@@ -303,7 +303,8 @@ def _object(tb: _Table, i: int) -> Object:
     radius, hh = 0.5, 0.5
     if shape == "plane":
         sz = tb.vec("size", 2, default=None, lo=1e-6)
-        half = np.array([math.inf, 0.0, math.inf]) if sz is None else np.array([sz[0] / 2, 0.0, sz[1] / 2])
+        half = (np.array([math.inf, 0.0, math.inf]) if sz is None
+                else np.array([sz[0] / 2, 0.0, sz[1] / 2]))
     elif shape in ("box", "blade"):
         default = np.array([1.0, 1.0, 1.0]) if shape == "box" else np.array([2.0, 0.12, 0.03])
         half = tb.vec("size", default=default, lo=1e-6) / 2

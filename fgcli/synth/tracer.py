@@ -6,13 +6,14 @@ lights, shadow rays, reflection rays, translucent layer) is a handful of element
 ops per primitive. Vectors are tuples of three (N,) tensors (or Python floats for values
 shared by every ray, such as the camera position), so constant operands cost nothing.
 
-Only elementwise ops, gathers and scatters with unique indices are used (no matmul, no
-reductions across rays), so the output does not depend on the thread count: the same scene
-gives the same bytes.
+Only elementwise ops, gathers and scatters with unique indices, and min/max (exact in any
+order) are used: no matmul, no sums across rays. The output does not depend on the thread
+count: the same scene gives the same bytes.
 
 Work counters (scene.stats, cumulative; `scene.reset_stats()`): primary_rays, shadow_rays,
 reflection_rays, translucent_rays, primitive_tests (ray-primitive intersection tests),
-disocclusion_rays and analysis_rays (extras only).
+bound_tests (bounding-sphere tests of shadow rays), disocclusion_rays and analysis_rays
+(extras only).
 """
 from __future__ import annotations
 
@@ -31,7 +32,6 @@ INF = math.inf
 FILTER = 1.0  # texture filter width, in pixels
 MAX_RAYS = 1 << 16  # rays per chunk: keeps the working set in cache and memory bounded
 CULL = True  # skip primitives whose bounding sphere no ray of a batch can meet (exact)
-_EPS = 1e-6
 
 
 # ----------------------------------------------------------------------------- cameras
@@ -223,7 +223,7 @@ def _surface_local(ob, p):
         return (zero, one, zero), (x, z)
     if ob.shape == "sphere":
         r = ob.radius
-        n = (x * (1.0 / r), y * (1.0 / r), z * (1.0 / r))
+        n = _normalize(p)  # not p / r: grazing hits land slightly off the sphere in float32
         u = torch.atan2(x, z) * r
         v = torch.asin(torch.clamp(n[1], -1.0, 1.0)) * r
         return n, (u, v)
@@ -272,12 +272,39 @@ def _nearest(scene: Scene, ids: list[int], xf: list[_Xf], o, d, n: int, tmin: fl
 
 
 def _occluded(scene: Scene, ids: list[int], xf: list[_Xf], o, d, tmax, n: int):
-    """Any hit in (tmin, tmax) among objects `ids` (bool (n,))."""
+    """Any hit in (tmin, tmax) among objects `ids` (bool (n,)).
+
+    Rays that pass farther from an object's bounding sphere than its radius (or are blocked
+    already) skip its primitive test: a conservative test with a margin, so the answer is
+    the same as testing every ray (counted as bound_tests)."""
     blocked = torch.zeros(n, dtype=torch.bool)
+    dd = None
     for k in ids:
-        ol, dl = xf[k].to_local(o, d)
-        blocked |= _isect(scene.objects[k], ol, dl, 1e-5) < tmax
-        _count(scene, "primitive_tests", n)
+        ob = scene.objects[k]
+        sel = None
+        if CULL and math.isfinite(ob.bound):
+            if dd is None:
+                dd = _dot(d, d)
+            oc = _sub(xf[k].T, o)
+            b = _dot(oc, d)
+            r2 = (ob.bound * 1.001 + 1e-4) ** 2
+            near = (_dot(oc, oc) * dd - b * b <= r2 * dd) & ~blocked
+            _count(scene, "bound_tests", n)
+            sel = torch.nonzero(near).squeeze(1)
+            if sel.numel() == 0:
+                continue
+            if sel.numel() > n // 2:  # most rays pass: gathering them costs more than it saves
+                sel = None
+        if sel is None:
+            ol, dl = xf[k].to_local(o, d)
+            blocked |= _isect(ob, ol, dl, 1e-5) < tmax
+            _count(scene, "primitive_tests", n)
+        else:
+            ol, dl = xf[k].to_local(_take(o, sel), _take(d, sel))
+            tm = tmax[sel] if isinstance(tmax, torch.Tensor) else tmax
+            hit = _isect(ob, ol, dl, 1e-5) < tm
+            blocked.index_put_((sel,), blocked[sel] | hit)
+            _count(scene, "primitive_tests", sel.numel())
     return blocked
 
 
@@ -563,40 +590,153 @@ def render(scene: Scene, t: float, prev_t: float | None = None, spp: int | None 
                        spp or scene.spp, role, number, extras)
 
 
+@dataclass
+class _At:
+    """Everything evaluated at one time: camera, object transforms, lights."""
+
+    t: float
+    fc: FrameCamera
+    xf: list
+    lights: list
+    clip: list  # projection @ world_to_camera (nested list)
+
+    @classmethod
+    def of(cls, scene: Scene, t: float, role: str) -> "_At":
+        fc = frame_camera(scene, t, role)
+        return cls(t, fc, _transforms(scene, t), _lights_at(scene, t),
+                   (fc.projection @ fc.world_to_camera).tolist())
+
+    @property
+    def origin(self):
+        return tuple(float(x) for x in self.fc.position)
+
+
+def _box_filter(x: torch.Tensor, M: int, n: int) -> torch.Tensor:
+    """Mean of the first n blocks of M values (fixed order, so the same bits every time)."""
+    acc = x[0:M].clone()
+    for s in range(1, n):
+        acc += x[s * M:(s + 1) * M]
+    return acc * (1.0 / n)
+
+
+def _color(scene: Scene, now: _At, d, tt, who, h: _Hits, pix: float, y0: int, y1: int):
+    """Shaded color of every camera ray: surfaces (+ one mirror bounce), sky, then the
+    translucent layer on top."""
+    n = tt.numel()
+    hit = who >= 0
+    col = _sky(scene, d)
+    hsel = torch.nonzero(hit).squeeze(1)
+    if hsel.numel():
+        hh = _Hits(*(_take(v, hsel) if isinstance(v, tuple) else v[hsel]
+                     for v in (getattr(h, f) for f in _Hits.__dataclass_fields__)))
+        dh = _take(d, hsel)
+        c = _shade(scene, now.lights, now.xf, hh, dh, hsel.numel(), scene.has("shadows"),
+                   scene.has("specular"))
+        if scene.has("reflection"):
+            msel = torch.nonzero(hh.mirror > 0).squeeze(1)
+            if msel.numel():
+                dm = _take(dh, msel)
+                travelled = tt[hsel][msel] * torch.sqrt(_dot(dm, dm))
+                dm = _normalize(dm)
+                nm, Pm = _take(hh.n, msel), _take(hh.P, msel)
+                r = _add_scaled(dm, nm, -2.0 * _dot(dm, nm))
+                org = _add_scaled(Pm, nm, 2e-4 * (1.0 + torch.sqrt(_dot(Pm, Pm))))
+                _count(scene, "reflection_rays", msel.numel())
+                rc = _trace_shade(scene, now.lights, now.xf, org, r, msel.numel(),
+                                  scene.seconds(now.t), scene.opaque, pix, travelled)
+                mm = hh.mirror[msel]
+                for i in range(3):
+                    c[i] = c[i].index_put((msel,), c[i][msel] * (1.0 - mm) + rc[i] * mm)
+        for i in range(3):
+            col[i] = col[i].index_put((hsel,), c[i])
+    transl = scene.translucent
+    if transl:
+        _count(scene, "translucent_rays", n)
+        t2, who2 = _nearest(scene, _band_objects(scene, transl, now.xf, now.fc, y0, y1),
+                            now.xf, now.origin, d, n)
+        tsel = torch.nonzero(t2 < tt).squeeze(1)
+        if tsel.numel():
+            d2 = _take(d, tsel)
+            h2 = _surfaces(scene, now.xf, now.origin, d2, t2[tsel], who2[tsel],
+                           scene.seconds(now.t), tsel.numel(), pix)
+            c2 = _shade(scene, now.lights, now.xf, h2, d2, tsel.numel(), False,
+                        scene.has("specular"))
+            a = h2.opacity
+            for i in range(3):
+                col[i] = col[i].index_put((tsel,), col[i][tsel] * (1.0 - a) + c2[i] * a)
+    return col
+
+
+def _reproject(scene: Scene, now: _At, then: _At, d, wc, h: _Hits, cs, M: int):
+    """Where the surface points seen by the pixel-centre rays were at the previous time:
+    clip-space x, y, w in the previous camera, their view depth there, and (for analysis)
+    their world position and normal then. Sky rays are directions: camera rotation only."""
+    qx, qy, qw = torch.zeros(M), torch.zeros(M), torch.ones(M)
+    pd = torch.full((M,), INF)
+    Pp = [torch.zeros(M) for _ in range(3)]
+    Np = [torch.zeros(M) for _ in range(3)]
+    pl, nc = _take(h.plocal, cs), _take(h.n, cs)
+    zrow = then.fc.world_to_camera[2].tolist()
+    for k in range(len(scene.objects)):
+        sel = torch.nonzero(wc == k).squeeze(1)
+        if sel.numel() == 0:
+            continue
+        P = then.xf[k].to_world(_take(pl, sel))
+        qx[sel], qy[sel], qw[sel] = _project(then.clip, P)
+        pd[sel] = -(zrow[0] * P[0] + zrow[1] * P[1] + zrow[2] * P[2] + zrow[3])
+        nk = _rot(then.xf[k].R, _rot_t(now.xf[k].R, _take(nc, sel)))
+        for i in range(3):
+            Pp[i][sel], Np[i][sel] = P[i], nk[i]
+    ssel = torch.nonzero(wc < 0).squeeze(1)
+    if ssel.numel():
+        qx[ssel], qy[ssel], qw[ssel] = _project(then.clip, _take(_take(d, cs), ssel), 0.0)
+    return qx, qy, qw, pd, Pp, Np
+
+
+def _analysis(scene: Scene, now: _At, then: _At, h: _Hits, cs, wc, qx, qy, front, pd, Pp, Np,
+              M: int):
+    """disoccluded: the surface point is hidden or off-screen at the previous time (traced
+    from the previous camera through its position there); light_changed: a light started
+    or stopped reaching it."""
+    fcp = then.fc
+    dp = _camera_rays(fcp, qx, qy)
+    _count(scene, "disocclusion_rays", M)
+    tp, wp = _nearest(scene, scene.opaque, then.xf, then.origin, dp, M)
+    same = (wp == wc) & ((wc < 0) | (torch.abs(tp - pd) <= 1e-3 * pd + 1e-4))
+    onscreen = front & (qx >= 0) & (qx < fcp.width) & (qy >= 0) & (qy < fcp.height)
+    changed = torch.zeros(M, dtype=torch.bool)
+    hs = torch.nonzero(wc >= 0).squeeze(1)
+    if hs.numel() and now.lights:
+        m = hs.numel()
+        lit_now = _lit(scene, now.lights, now.xf, _take(_take(h.P, cs), hs),
+                       _take(_take(h.n, cs), hs), m)
+        lit_then = _lit(scene, then.lights, then.xf, _take(Pp, hs), _take(Np, hs), m)
+        ch = torch.zeros(m, dtype=torch.bool)
+        for a, b in zip(lit_now, lit_then):
+            ch |= a != b
+        changed[hs] = ch
+    return ~(same & onscreen), changed
+
+
 def _render(scene, t, prev_t, spp, role, number, extras):
-    fc = frame_camera(scene, t, role)
+    now = _At.of(scene, t, role)
+    then = None if prev_t is None else _At.of(scene, prev_t, role)
+    fc = now.fc
     W, H = fc.width, fc.height
-    seconds = scene.seconds(t)
-    xf = _transforms(scene, t)
-    lights = _lights_at(scene, t)
-    prev = None
-    if prev_t is not None:
-        fcp = frame_camera(scene, prev_t, role)
-        Mp = (fcp.projection @ fcp.world_to_camera).tolist()
-        prev = (fcp, Mp, _transforms(scene, prev_t), fcp.world_to_camera[2].tolist(),
-                _lights_at(scene, prev_t))
     offs, n_color, centre = _sample_offsets(spp)
-    S = len(offs)
-    HW = H * W
-    color = torch.zeros(3, HW)
-    cover = torch.zeros(HW)
-    depth = torch.full((HW,), INF)
-    mv = torch.zeros(2, HW)
-    normal = torch.zeros(3, HW)
-    albedo = torch.zeros(3, HW)
-    rough = torch.ones(HW)
+    S, HW = len(offs), H * W
+    buf = {"color": torch.zeros(3, HW), "alpha": torch.zeros(1, HW),
+           "depth": torch.full((1, HW), INF), "mv": torch.zeros(2, HW),
+           "normal": torch.zeros(3, HW), "albedo": torch.zeros(3, HW),
+           "roughness": torch.ones(1, HW)}
     want = extras is not None
-    if want:
-        oid = torch.full((HW,), -1, dtype=torch.int64)
-        edge = torch.zeros(HW, dtype=torch.bool)
-        pdepth = torch.full((HW,), INF)
-        disocc = torch.zeros(HW, dtype=torch.bool)
-        lchange = torch.zeros(HW, dtype=torch.bool)
+    ex = {"object_id": torch.full((HW,), -1, dtype=torch.int64),
+          "edge": torch.zeros(HW, dtype=torch.bool), "prev_depth": torch.full((HW,), INF),
+          "disoccluded": torch.zeros(HW, dtype=torch.bool),
+          "light_changed": torch.zeros(HW, dtype=torch.bool)} if want else {}
     rows = max(1, MAX_RAYS // (S * W))
     xs = torch.arange(W, dtype=torch.float32) + (0.5 + fc.jitter[0])
-    opaque, transl = scene.opaque, scene.translucent
-    origin = tuple(float(x) for x in fc.position)
-    pix = 2.0 * fc.tan_y / fc.height
+    pix = 2.0 * fc.tan_y / fc.height  # pixel size at unit distance
     for y0 in range(0, H, rows):
         y1 = min(H, y0 + rows)
         M = (y1 - y0) * W
@@ -606,149 +746,51 @@ def _render(scene, t, prev_t, spp, role, number, extras):
         py = torch.cat([(ys[:, None] + oy).expand(y1 - y0, W).reshape(-1) for _, oy in offs])
         d = _camera_rays(fc, px, py)
         _count(scene, "primary_rays", n)
-        tt, who = _nearest(scene, _band_objects(scene, opaque, xf, fc, y0, y1), xf, origin, d, n)
-        hit = who >= 0
-        h = _surfaces(scene, xf, origin, d, tt, who, seconds, n, pix)
-        col = [torch.zeros(n) for _ in range(3)]
-        hsel = torch.nonzero(hit).squeeze(1)
-        if hsel.numel():
-            hh = _Hits(*(_take(getattr(h, f), hsel) if isinstance(getattr(h, f), tuple)
-                         else getattr(h, f)[hsel] for f in _Hits.__dataclass_fields__))
-            dh = _take(d, hsel)
-            c = _shade(scene, lights, xf, hh, dh, hsel.numel(), scene.has("shadows"),
-                       scene.has("specular"))
-            if scene.has("reflection"):
-                msel = torch.nonzero(hh.mirror > 0).squeeze(1)
-                if msel.numel():
-                    dm = _normalize(_take(dh, msel))
-                    nm = _take(hh.n, msel)
-                    dn = _dot(dm, nm)
-                    r = _add_scaled(dm, nm, -2.0 * dn)
-                    Pm = _take(hh.P, msel)
-                    org = _add_scaled(Pm, nm, 2e-4 * (1.0 + torch.sqrt(_dot(Pm, Pm))))
-                    _count(scene, "reflection_rays", msel.numel())
-                    dm0 = _take(dh, msel)
-                    t0 = tt[hsel][msel] * torch.sqrt(_dot(dm0, dm0))
-                    rc = _trace_shade(scene, lights, xf, org, r, msel.numel(), seconds, opaque,
-                                      pix, t0)
-                    mm = hh.mirror[msel]
-                    for i in range(3):
-                        c[i] = c[i].index_put((msel,), c[i][msel] * (1.0 - mm) + rc[i] * mm)
-            for i in range(3):
-                col[i][hsel] = c[i]
-        sky = _sky(scene, d)
-        col = [torch.where(hit, col[i], sky[i]) for i in range(3)]
-        if transl:
-            _count(scene, "translucent_rays", n)
-            t2, who2 = _nearest(scene, _band_objects(scene, transl, xf, fc, y0, y1), xf,
-                                origin, d, n)
-            tsel = torch.nonzero(t2 < tt).squeeze(1)
-            if tsel.numel():
-                d2 = _take(d, tsel)
-                h2 = _surfaces(scene, xf, origin, d2, t2[tsel], who2[tsel], seconds, tsel.numel(),
-                               pix)
-                c2 = _shade(scene, lights, xf, h2, d2, tsel.numel(), False, scene.has("specular"))
-                a = h2.opacity
-                for i in range(3):
-                    col[i] = col[i].index_put((tsel,), col[i][tsel] * (1.0 - a) + c2[i] * a)
+        tt, who = _nearest(scene, _band_objects(scene, scene.opaque, now.xf, fc, y0, y1),
+                           now.xf, now.origin, d, n)
+        h = _surfaces(scene, now.xf, now.origin, d, tt, who, scene.seconds(t), n, pix)
+        col = _color(scene, now, d, tt, who, h, pix, y0, y1)
         # resolve: box filter over the color samples, G-buffer from the pixel-centre sample
         sl = slice(y0 * W, y1 * W)
         cs = slice(centre * M, (centre + 1) * M)
         for i in range(3):
-            acc = col[i][0:M].clone()
-            for s in range(1, n_color):
-                acc += col[i][s * M:(s + 1) * M]
-            color[i, sl] = acc * (float(scene.exposure) / n_color)
-        hf = hit.to(torch.float32)
-        acc = hf[0:M].clone()
-        for s in range(1, n_color):
-            acc += hf[s * M:(s + 1) * M]
-        cover[sl] = acc * (1.0 / n_color)
+            buf["color"][i, sl] = _box_filter(col[i], M, n_color) * float(scene.exposure)
+        buf["alpha"][0, sl] = _box_filter((who >= 0).to(torch.float32), M, n_color)
         tc, wc = tt[cs], who[cs]
-        depth[sl] = tc
+        buf["depth"][0, sl] = tc
         for i in range(3):
-            normal[i, sl] = h.n[i][cs]
-            albedo[i, sl] = h.albedo[i][cs]
-        rough[sl] = torch.where(wc >= 0, h.rough[cs], 1.0)
-        if prev is not None:
-            fcp, Mp, xfp, zrow, lights_p = prev
-            qx = torch.zeros(M)
-            qy = torch.zeros(M)
-            qw = torch.ones(M)
-            pd = torch.full((M,), INF)
-            pl = _take(h.plocal, cs)
-            if want:  # the surface point and its normal at prev_t
-                Pp = [torch.zeros(M) for _ in range(3)]
-                Np = [torch.zeros(M) for _ in range(3)]
-            for k in range(len(scene.objects)):
-                sel = torch.nonzero(wc == k).squeeze(1)
-                if sel.numel() == 0:
-                    continue
-                P = xfp[k].to_world(_take(pl, sel))
-                cx, cy, cw = _project(Mp, P)
-                qx[sel], qy[sel], qw[sel] = cx, cy, cw
-                pd[sel] = -(zrow[0] * P[0] + zrow[1] * P[1] + zrow[2] * P[2] + zrow[3])
-                if want:
-                    nk = _rot(xfp[k].R, _rot_t(xf[k].R, _take(_take(h.n, cs), sel)))
-                    for i in range(3):
-                        Pp[i][sel], Np[i][sel] = P[i], nk[i]
-            ssel = torch.nonzero(wc < 0).squeeze(1)
-            if ssel.numel():  # sky: a direction, moved by the camera rotation only
-                cx, cy, cw = _project(Mp, _take(_take(d, cs), ssel), 0.0)
-                qx[ssel], qy[ssel], qw[ssel] = cx, cy, cw
+            buf["normal"][i, sl] = h.n[i][cs]
+            buf["albedo"][i, sl] = h.albedo[i][cs]
+        buf["roughness"][0, sl] = torch.where(wc >= 0, h.rough[cs], 1.0)
+        if then is not None:
+            qx, qy, qw, pd, Pp, Np = _reproject(scene, now, then, d, wc, h, cs, M)
             front = qw > 1e-9
             inv = 1.0 / torch.clamp(qw, min=1e-9)
-            qx = (qx * inv + 1.0) * (0.5 * fcp.width)
-            qy = (1.0 - qy * inv) * (0.5 * fcp.height)
-            lim = 4.0 * (W + H)
-            cx0 = px[cs] - 0.0  # sample positions of the centre ray (jitter included)
-            cy0 = py[cs]
-            mv[0, sl] = torch.clamp(qx - cx0, -lim, lim)
-            mv[1, sl] = torch.clamp(qy - cy0, -lim, lim)
+            qx = (qx * inv + 1.0) * (0.5 * then.fc.width)
+            qy = (1.0 - qy * inv) * (0.5 * then.fc.height)
+            lim = 4.0 * (W + H)  # points behind the previous camera: far off-screen, finite
+            buf["mv"][0, sl] = torch.clamp(qx - px[cs], -lim, lim)
+            buf["mv"][1, sl] = torch.clamp(qy - py[cs], -lim, lim)
             if want:
-                pdepth[sl] = pd
-                # is the surface point the first thing the previous camera sees there?
-                dp = _camera_rays(fcp, qx, qy)
-                _count(scene, "disocclusion_rays", M)
-                tp, wp = _nearest(scene, opaque, xfp, tuple(float(x) for x in fcp.position),
-                                  dp, M)
-                same = (wp == wc) & ((wc < 0) | (torch.abs(tp - pd) <= 1e-3 * pd + 1e-4))
-                onscreen = front & (qx >= 0) & (qx < fcp.width) & (qy >= 0) & (qy < fcp.height)
-                disocc[sl] = ~(same & onscreen)
-                # did a light start or stop reaching the point (a shadow or the terminator
-                # moved over it)? Warping cannot reproduce those pixels either.
-                hs = torch.nonzero(wc >= 0).squeeze(1)
-                if hs.numel() and lights:
-                    Pn, Nn = _take(_take(h.P, cs), hs), _take(_take(h.n, cs), hs)
-                    now = _lit(scene, lights, xf, Pn, Nn, hs.numel())
-                    then = _lit(scene, lights_p, xfp, _take(Pp, hs), _take(Np, hs), hs.numel())
-                    ch = torch.zeros(hs.numel(), dtype=torch.bool)
-                    for a, b in zip(now, then):
-                        ch |= a != b
-                    lc = torch.zeros(M, dtype=torch.bool)
-                    lc[hs] = ch
-                    lchange[sl] = lc
+                ex["prev_depth"][sl] = pd
+                ex["disoccluded"][sl], ex["light_changed"][sl] = _analysis(
+                    scene, now, then, h, cs, wc, qx, qy, front, pd, Pp, Np, M)
         if want:
-            oid[sl] = wc
+            ex["object_id"][sl] = wc
             e = torch.zeros(M, dtype=torch.bool)
             for s in range(n_color):
                 e |= who[s * M:(s + 1) * M] != wc
-            edge[sl] = e
-    color = color.reshape(3, H, W)
+            ex["edge"][sl] = e
+    out = {k: v.reshape(v.shape[0], H, W) for k, v in buf.items()}
     if scene.has("particles"):
-        _particles(scene, color, fc, seconds)
+        _particles(scene, out["color"], fc, scene.seconds(t))
     if scene.has("hud"):
-        _hud(scene, color, fc)
+        _hud(scene, out["color"], fc)
     frame = Frame(number=int(math.floor(t + 0.5)) if number is None else number,
-                  color=color, depth=depth.reshape(1, H, W), mv=mv.reshape(2, H, W),
-                  alpha=cover.reshape(1, H, W), normal=normal.reshape(3, H, W),
-                  albedo=albedo.reshape(3, H, W), roughness=rough.reshape(1, H, W),
-                  camera=fc.camera, header={}, time=t)
+                  camera=fc.camera, header={}, time=t, **out)
     if want:
-        extras.update(object_id=oid.reshape(H, W), edge=edge.reshape(H, W))
-        if prev is not None:
-            extras.update(prev_depth=pdepth.reshape(H, W), disoccluded=disocc.reshape(H, W),
-                          light_changed=lchange.reshape(H, W))
+        extras.update({k: v.reshape(H, W) for k, v in ex.items()
+                       if then is not None or k in ("object_id", "edge")})
         extras["camera"] = fc
     return frame
 
