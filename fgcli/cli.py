@@ -8,6 +8,10 @@ import sys
 
 import click
 
+# torch's OpenMP threads spin while waiting by default; with the EXR prefetch/writer threads
+# on a 2-core box that slows compute 5-10x. Must be set before torch is first imported.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from fgcli import __version__
 
 COMMANDS = {

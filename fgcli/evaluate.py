@@ -158,7 +158,7 @@ def target_masks(src, task: Task, gt: Frame, rel_tol: float = 0.05):
     """
     import torch
 
-    from fgcli.ops import backward_warp
+    from fgcli.ops import backward_warp, sample_nearest
 
     src_n = task.a if task.mode == "interp" else task.b
     H, W = gt.height, gt.width
@@ -175,14 +175,13 @@ def target_masks(src, task: Task, gt: Frame, rel_tol: float = 0.05):
             break
         step_mv, _ = backward_warp(fn.mv, disp, mode="bilinear") if n != task.target else (fn.mv, None)
         if n != task.target:
-            d_here, _ = backward_warp(fn.depth, disp, mode="nearest")
-            cur_depth = d_here
+            cur_depth, _ = sample_nearest(fn.depth, disp)
         disp = disp + step_mv
         prev = src.input(n - 1) if n - 1 == src_n else src.fine_mv(n - 1)
         if prev is None or prev.depth is None:
             ok = False
             break
-        d_prev, valid = backward_warp(prev.depth, disp, mode="nearest", border="zeros")
+        d_prev, valid = sample_nearest(prev.depth, disp)
         finite = torch.isfinite(cur_depth)
         nearer = torch.where(finite, d_prev < cur_depth * (1 - rel_tol), torch.isfinite(d_prev))
         occluded |= nearer | ~valid

@@ -71,7 +71,8 @@ class Splat(Stage):
         z = torch.zeros(2, H, W, dtype=torch.float32, device=d.device)
         return {"motion": SplatResult(
             to1=z, to0=z.clone(), depth=d, valid=torch.ones(1, H, W, dtype=torch.bool, device=d.device),
-            source=torch.arange(H * W, device=d.device).view(1, H, W), alpha=ctx["alpha"],
+            source=torch.arange(H * W, dtype=torch.int32, device=d.device).view(1, H, W),
+            alpha=ctx["alpha"],
             mode=ctx["mode"])}
 
     def run(self, ctx):
@@ -117,8 +118,10 @@ class GapFill(Stage):
 
         fb = fbd = None
         if self.fallback == "prev_mv" and ctx["mode"] == "interp":
-            fb = ctx.get("mv0") if ctx.get("mv0") is not None else ctx["mv1"]
-            fbd = ctx["depth1"]
+            # holes are surfaces only frame 0 sees: its vectors and depth
+            has0 = ctx.get("mv0") is not None
+            fb = ctx["mv0"] if has0 else ctx["mv1"]
+            fbd = ctx["depth0"] if ctx.get("depth0") is not None else ctx["depth1"]
         return {"motion": gap_fill(ctx["motion"], self.depth_threshold, self.fill, fb, fbd)}
 
 
