@@ -212,6 +212,7 @@ class Timings:
     io_read: list = field(default_factory=list)
     io_write: list = field(default_factory=list)
     skipped: list = field(default_factory=list)  # (frame label, stage id, reason)
+    skip_cost: dict = field(default_factory=dict)  # stage id -> ms of one measured run
 
     def add(self, sid: str, ms: float) -> None:
         self.stages.setdefault(sid, []).append(ms)
@@ -229,8 +230,10 @@ class Timings:
         per = {sid: self.median(v) for sid, v in self.stages.items()}
         saved = 0.0
         for _, sid, _ in self.skipped:
-            saved += per.get(sid, 0.0)
+            saved += per.get(sid, self.skip_cost.get(sid, 0.0))
+        frames = max(1, len(self.total))
         return {"ms_per_frame": self.median(self.total), "stages": per,
+                "ms_saved_per_frame": saved / frames,
                 "io_read_ms": self.median(self.io_read, 0), "io_write_ms": self.median(self.io_write, 0),
                 "skipped": len(self.skipped), "ms_saved_by_skipping": saved}
 
@@ -254,8 +257,13 @@ def frame_facts(ctx: dict) -> dict:
 
 
 def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timings | None = None,
-               label: str = "", sync=None) -> dict:
-    """Run the built stages on one frame's context. Returns the context with outputs."""
+               label: str = "", sync=None, measure_skips: bool = False) -> dict:
+    """Run the built stages on one frame's context. Returns the context with outputs.
+
+    A stage whose needed() says no is skipped (its exact skip() outputs are used) and logged
+    with the reason. measure_skips: the first time a stage is skipped before it has ever
+    run, run it anyway once (output discarded) so the time saved is measured, not guessed.
+    """
     facts = frame_facts(ctx)
     ctx["facts"] = facts
     t_all = time.perf_counter()
@@ -265,6 +273,16 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
         if need:
             out = stage.run(ctx)
         else:
+            if measure_skips and timings is not None and spec.id not in timings.skip_cost:
+                costs = []
+                for _ in range(2):  # the second run is the warm one
+                    t1 = time.perf_counter()
+                    stage.run(dict(ctx))
+                    if sync is not None:
+                        sync()
+                    costs.append((time.perf_counter() - t1) * 1000.0)
+                timings.skip_cost[spec.id] = min(costs)
+            t0 = time.perf_counter()
             out = stage.skip(ctx)
             if timings is not None:
                 timings.skipped.append((label, spec.id, why))

@@ -52,7 +52,7 @@ def run(mode, in_dir, out_dir, pipeline, sets, device, no_progress, json_out, ti
                f"read {t['io_read_ms']:.1f} ms, write {t['io_write_ms']:.1f} ms per frame", err=True)
     if t["skipped"]:
         click.echo(f"skipped {t['skipped']} stage runs where not needed "
-                   f"(saved ~{t['ms_saved_by_skipping']:.1f} ms); see fgen-run.json", err=True)
+                   f"(saving ~{t['ms_saved_per_frame']:.1f} ms/frame); see fgen-run.json", err=True)
     if json_out:
         with open(json_out, "w") as fh:
             json.dump(summary, fh, indent=1)
