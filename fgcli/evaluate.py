@@ -10,7 +10,6 @@ Input and ground truth share one frame-number timeline. Two sources:
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 from fgcli.errors import InputError, UsageError

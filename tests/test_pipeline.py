@@ -3,10 +3,7 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
-import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
@@ -17,7 +14,7 @@ from fgcli.cli import cli
 from fgcli.errors import UsageError
 from fgcli.frame import Frame
 from fgcli.io.frames import read_frame, write_frame
-from fgcli.stages.base import REGISTRY, load_all
+from fgcli.stages.base import load_all
 
 
 def _frame(t, h=24, w=32, scale=1.0):

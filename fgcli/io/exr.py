@@ -324,6 +324,9 @@ def _make_spec(channels: dict, types: dict | None, attributes: dict | None,
     if tile:
         spec.tile_width = spec.tile_height = int(tile)
     spec.attribute("compression", compression)
+    # no write-time stamp (OpenImageIO would add the current time as capDate): the same
+    # frame written twice gives the same bytes; a source frame's own DateTime is carried
+    spec.attribute("DateTime", "")
     attribute_types = attribute_types or {}
     for k, v in (attributes or {}).items():
         if k in STRUCTURAL_ATTRIBUTES or k.startswith("oiio:") or k.startswith("openexr:"):
