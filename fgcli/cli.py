@@ -51,6 +51,9 @@ def cli(ctx, debug):
 
     Exit codes: 0 ok, 1 bad input or failed check, 2 usage error, 3 output problem.
     """
+    from fgcli.sysutil import tune_allocator
+
+    tune_allocator()  # keep freed frame-sized buffers: page faults cost more than the maths
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
     if debug:

@@ -69,10 +69,13 @@ class MVWarp(Stage):
     optional_inputs = ("color0", "depth0", "prev_time")
     outputs = ("color", "depth", "mv")
     options = (Option("filter", "choice", "bilinear", "resampling filter",
-                      choices=("bilinear", "catmull-rom", "nearest")),)
+                      choices=("bilinear", "catmull-rom", "nearest")),
+               Option("vectors", "choice", "own", "interpolation from frame 0: its own vectors "
+                      "(toward t-1, constant velocity) or frame 1's (the pair's interval)",
+                      choices=("own", "pair")))
 
     def needed(self, ctx, facts):
-        if not facts["any_motion"]:
+        if not facts["any_motion"] and not facts["history_motion"]:
             return False, "no motion: warp is the identity"
         return True, ""
 
@@ -81,15 +84,23 @@ class MVWarp(Stage):
         return out
 
     def run(self, ctx):
-        from fgcli.ops import mv_warp_extrap, mv_warp_interp, sample_nearest
+        from fgcli.ops import (backward_warp, mv_warp_extrap, mv_warp_interp, sample_nearest,
+                               sanitize_mv)
 
         a, mv1 = ctx["alpha"], ctx["mv1"]
         if ctx["mode"] == "interp":
-            color = mv_warp_interp(ctx["color0"], ctx["color1"], mv1, a, self.filter)
-            if a <= 0.5:
-                depth, _ = sample_nearest(ctx["depth0"], mv1 * a)
+            if a <= 0.5 and self.vectors == "own" and ctx.get("mv0") is not None:
+                # frame 0's surfaces keep moving as they did: at time a, q shows
+                # frame 0 at q + a * mv0(q)
+                flow = sanitize_mv(ctx["mv0"]) * a
+                color, _ = backward_warp(ctx["color0"], flow, self.filter)
+                depth, _ = sample_nearest(ctx["depth0"], flow)
             else:
-                depth, _ = sample_nearest(ctx["depth1"], mv1 * -(1.0 - a))
+                color = mv_warp_interp(ctx["color0"], ctx["color1"], mv1, a, self.filter)
+                if a <= 0.5:
+                    depth, _ = sample_nearest(ctx["depth0"], mv1 * a)
+                else:
+                    depth, _ = sample_nearest(ctx["depth1"], mv1 * -(1.0 - a))
         else:
             color = mv_warp_extrap(ctx["color1"], mv1, a, self.filter)
             depth, _ = sample_nearest(ctx["depth1"], mv1 * a)
