@@ -17,6 +17,8 @@ import sys
 import tempfile
 import time
 
+# as the CLI does: torch's OpenMP threads must not spin (set before torch is imported)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
