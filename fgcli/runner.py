@@ -120,6 +120,9 @@ class AsyncWriter:
         self.timings.io_write.append((time.perf_counter() - t0) * 1000.0)
 
     def submit(self, path, frame, **kw) -> None:
+        if self.depth == 0:  # serial: write now, on this thread
+            self._write(path, frame, kw)
+            return
         while len(self.pending) >= self.depth:
             self.pending.pop(0).result()
         self.pending.append(self.pool.submit(self._write, path, frame, kw))
@@ -204,7 +207,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     written, skipped_existing = 0, 0
     out.check_all([out.path_for(on) for *_, on in copies] + [out.path_for(j[3]) for j in jobs])
     bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)
-    writer = AsyncWriter(out, timings)
+    writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")))
     wkw = {"layout": out_layout, "half": half, "compression": compression}
     try:
         with torch.inference_mode():
