@@ -38,6 +38,7 @@ PIPELINE_DIRS = [os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__
 TOP_KEYS = {"name", "description", "modes", "stage", "paper", "requires"}
 STAGE_KEYS = {"use", "id", "modes"}
 FINAL_OUTPUTS = ("color", "depth", "mv")
+SCENE_CUT_THRESHOLD = 0.45  # FSR 3's symmetric-KL threshold on regional luminance histograms
 
 
 @dataclass
@@ -238,7 +239,7 @@ class Timings:
                 "skipped": len(self.skipped), "ms_saved_by_skipping": saved}
 
 
-def frame_facts(ctx: dict) -> dict:
+def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
     """Cheap per-frame facts computed once; stages use them in needed()."""
     import torch
 
@@ -248,6 +249,13 @@ def frame_facts(ctx: dict) -> dict:
     facts = {"any_motion": any_motion,
              "has_history": ctx.get("color0") is not None,
              "history_motion": bool(mv0 is not None and torch.count_nonzero(mv0).item() > 0)}
+    if detect_cuts and ctx.get("color0") is not None:
+        from fgcli.ops import scene_change_score
+
+        facts["scene_change"] = scene_change_score(ctx["color0"], ctx["color1"])
+        facts["scene_cut"] = facts["scene_change"] > SCENE_CUT_THRESHOLD
+    else:
+        facts["scene_cut"] = False
     cam0, cam1 = ctx.get("camera0"), ctx.get("camera1")
     if cam0 is not None and cam1 is not None:
         import numpy as np
@@ -257,16 +265,27 @@ def frame_facts(ctx: dict) -> dict:
 
 
 def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timings | None = None,
-               label: str = "", sync=None, measure_skips: bool = False) -> dict:
+               label: str = "", sync=None, measure_skips: bool = False,
+               detect_cuts: bool = True) -> dict:
     """Run the built stages on one frame's context. Returns the context with outputs.
 
     A stage whose needed() says no is skipped (its exact skip() outputs are used) and logged
     with the reason. measure_skips: the first time a stage is skipped before it has ever
     run, run it anyway once (output discarded) so the time saved is measured, not guessed.
     """
-    facts = frame_facts(ctx)
-    ctx["facts"] = facts
     t_all = time.perf_counter()
+    facts = frame_facts(ctx, detect_cuts)
+    ctx["facts"] = facts
+    if facts["scene_cut"]:
+        # a camera cut between the two rendered frames: never smear two shots together;
+        # every pipeline repeats the nearest frame of the right shot
+        ctx.update(cut_outputs(ctx))
+        if timings is not None:
+            for spec, _ in stages:
+                timings.skipped.append((label, spec.id, f"scene cut (score "
+                                        f"{facts['scene_change']:.2f})"))
+            timings.total.append((time.perf_counter() - t_all) * 1000.0)
+        return ctx
     for spec, stage in stages:
         t0 = time.perf_counter()
         need, why = stage.needed(ctx, facts)
@@ -299,6 +318,20 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
     if missing:
         raise UsageError(f"pipeline produced no {', '.join(missing)} (check its stages)")
     return ctx
+
+
+def cut_outputs(ctx: dict) -> dict:
+    """Outputs at a scene cut: the temporally nearest rendered frame, no motion."""
+    import torch
+
+    from fgcli.ops import sanitize_depth, sanitize_values
+
+    use0 = ctx["mode"] == "interp" and ctx["alpha"] <= 0.5
+    color, depth = (ctx["color0"], ctx["depth0"]) if use0 else (ctx["color1"], ctx["depth1"])
+    mv = ctx["mv1"] if ctx.get("mv1") is not None else ctx.get("mv0")
+    return {"color": sanitize_values(color), "depth": sanitize_depth(depth),
+            "mv": torch.zeros_like(mv) if mv is not None else torch.zeros(
+                2, *color.shape[-2:], device=color.device)}
 
 
 def describe(p: Pipeline) -> dict:

@@ -1,4 +1,7 @@
-"""The full Mob-FGSR chains (fgcli.ops.mobfgsr): known answers and hard-case properties."""
+"""The full Mob-FGSR chains, run through the shipped pipeline file (pipelines/mob-fgsr.toml
+and its stages): known answers and hard-case properties."""
+from types import SimpleNamespace
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -6,7 +9,37 @@ from hypothesis import strategies as st
 
 from fgcli.ops import (backward_warp, blend_interp, gap_fill, sample_nearest, splat_motion)
 from fgcli.ops._testing import moving_square
-from fgcli.ops.mobfgsr import extrapolate, interpolate
+from fgcli import pipeline as pl
+from fgcli.runner import make_ctx
+
+
+def _run(mode, f0, f1, alpha, sets):
+    p = pl.load("mob-fgsr").with_overrides(sets) if sets else pl.load("mob-fgsr")
+    # random test frames look like camera cuts; test the stages, not the cut policy
+    ctx = pl.run_stages(p.build(mode), make_ctx(f0, f1, alpha, mode), detect_cuts=False)
+    return SimpleNamespace(color=ctx["color"], depth=ctx["depth"], mv=ctx["mv"],
+                           motion=ctx.get("motion"))
+
+
+def interpolate(color0, depth0, mv0, color1, depth1, mv1, alpha, *, model="quadratic",
+                dilate=1, check_depth0=True, fill="nearest", warp_mode="bilinear",
+                use_target_depth=False):
+    """mob-fgsr interpolation at alpha between frame 0 and frame 1, with option overrides."""
+    f0 = SimpleNamespace(color=color0, depth=depth0, mv=mv0, camera=None)
+    f1 = SimpleNamespace(color=color1, depth=depth1, mv=mv1, camera=None,
+                         width=color1.shape[-1], height=color1.shape[-2])
+    return _run("interp", f0, f1, alpha, [
+        f"splat.motion={model}", f"dilate.radius={dilate}",
+        f"splat.mv0_depth_check={check_depth0}", f"gap_fill.fill={fill}",
+        f"warp.filter={warp_mode}", f"blend.target_depth={use_target_depth}"])
+
+
+def extrapolate(color1, depth1, mv1, mv0, alpha, *, model="linear", dilate=1):
+    """mob-fgsr extrapolation to 1 + alpha from frame 1 (frame 0's vectors: quadratic)."""
+    f0 = SimpleNamespace(color=None, depth=None, mv=mv0, camera=None)
+    f1 = SimpleNamespace(color=color1, depth=depth1, mv=mv1, camera=None,
+                         width=color1.shape[-1], height=color1.shape[-2])
+    return _run("extrap", f0, f1, alpha, [f"splat.motion={model}", f"dilate.radius={dilate}"])
 
 INF = float("inf")
 NAN = float("nan")

@@ -120,6 +120,14 @@ class SequenceReader:
                 raw.helpers.add("depth")
         if raw.camera is None and n in self.sidecar:
             raw.camera = self.sidecar[n]
+        if not self._depth_checked and raw.arrays.get("depth") is not None:
+            self._depth_checked = True
+            why = depth_suspicion(raw.arrays["depth"])
+            if why:
+                print(f"warning: {path_of(self, n)}: frame {n}: channel depth: {why}; fgen "
+                      "expects linear view depth (+inf for sky). Depth tests will be wrong: "
+                      "convert it, or describe it in a layout TOML (depth_kind, depth_scale, "
+                      "sky_depth)", file=sys.stderr)
         return raw
 
     def read(self, n: int) -> Frame:
@@ -167,9 +175,41 @@ class SequenceReader:
         return (f"{self.folder}: NaN/Inf values replaced with finite values in frames "
                 f"{sequence._fmt(sorted(all_frames))}; " + "; ".join(parts))
 
+    _depth_checked = False
+
     def warn_nonfinite(self) -> None:
         """One warning per sequence naming the frames where NaN/Inf were replaced."""
         msg = self.nonfinite_summary()
         if msg and not self._warned:
             self._warned = True
             print(f"warning: {msg}", file=sys.stderr)
+
+
+def path_of(reader, n: int) -> str:
+    return reader.seq.files.get(n, reader.folder)
+
+
+def depth_suspicion(depth) -> str | None:
+    """Why a depth buffer looks like something other than linear view depth, or None.
+
+    Normalised device depth sits in [0, 1] with no +inf sky and crowds towards the far
+    end: near 1 for the conventional mapping, near 0 for reversed-Z. Linear depth of a
+    real scene seldom stays inside one unit everywhere without any sky.
+    """
+    import numpy as np
+
+    d = np.asarray(depth, dtype=np.float32)
+    fin = d[np.isfinite(d)]
+    if fin.size == 0:
+        return None
+    if (fin <= 0).mean() > 0.5:
+        return f"{(fin <= 0).mean():.0%} of the values are <= 0"
+    if np.isinf(d).any() or fin.max() > 1.0 or fin.min() < 0.0:
+        return None
+    med = float(np.median(fin))
+    if med > 0.9:
+        return f"all values lie in [0, 1] (median {med:.3f}): looks like normalized device depth"
+    if med < 0.1:
+        return f"all values lie in [0, 1] (median {med:.3f}): looks like reversed-Z device depth"
+    return None
+

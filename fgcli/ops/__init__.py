@@ -6,8 +6,8 @@ returns finite values for the hard cases of DESIGN.md section 5. Conventions: pi
 centres at integer + 0.5, x right, y down; depth linear (> 0, +inf sky); mv from frame t
 to frame t-1 in pixels (``prev_xy = xy + mv``).
 
-Mob-FGSR interpolation, frame 0 (older) and 1 (newer), time alpha (what
-``mobfgsr_interpolate`` runs)::
+Mob-FGSR interpolation, frame 0 (older) and 1 (newer), time alpha (what the stages of
+pipelines/mob-fgsr.toml run, one op per stage)::
 
     d1, m1 = dilate_nearest_depth(depth1, mv1)
     r = splat_motion(d1, m1, mv0, alpha, model="quadratic", mode="interp", depth0=depth0)
@@ -18,7 +18,7 @@ Mob-FGSR interpolation, frame 0 (older) and 1 (newer), time alpha (what
     out_depth = blend_interp_depth(d0s, d1s, v0, v1, alpha=alpha)
     out_mv = generated_mv(r)              # toward time 0
 
-Extrapolation to 1 + alpha (``mobfgsr_extrapolate``): splat with mode="extrap" (the public
+Extrapolation to 1 + alpha: splat with mode="extrap" (the public
 code: model="linear"), gap_fill(r), fill_extrap_holes(r, m1, d1), then
 backward_warp(color1, r.to1); generated_mv(r) points toward frame 1.
 
@@ -32,10 +32,8 @@ from fgcli.ops.blend import (T_B, T_D_REL, blend_interp, blend_interp_depth, ble
 from fgcli.ops.color import luminance, mulaw, srgb_eotf, srgb_oetf, to_display
 from fgcli.ops.fill import extrap_hole_fill, fill_extrap_holes, gap_fill
 from fgcli.ops.metrics import (flip_hdr, flip_ldr, masked_mean, psnr, ssim, ssim_map)
-from fgcli.ops.mobfgsr import Generated
-from fgcli.ops.mobfgsr import extrapolate as mobfgsr_extrapolate
-from fgcli.ops.mobfgsr import interpolate as mobfgsr_interpolate
 from fgcli.ops.motion import chain_mv, disocclusion_mask
+from fgcli.ops.scene import is_scene_change, scene_change_score
 from fgcli.ops.splat import (SplatResult, dilate_nearest_depth, generated_mv,
                              motion_coefficients, splat_motion)
 from fgcli.ops.warp import (backward_warp, mv_warp_extrap, mv_warp_interp, sample_nearest)
@@ -44,8 +42,8 @@ __all__ = [
     "SplatResult", "T_B", "T_D_REL", "backward_warp", "blend_interp", "blend_interp_depth",
     "blend_linear",
     "brightness_difference", "chain_mv", "dilate_nearest_depth", "disocclusion_mask",
-    "Generated", "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
-    "generated_mv", "luminance", "masked_mean", "mobfgsr_extrapolate", "mobfgsr_interpolate",
+    "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
+    "generated_mv", "luminance", "masked_mean", "is_scene_change", "scene_change_score",
     "motion_coefficients", "mulaw",
     "mv_warp_extrap", "mv_warp_interp", "psnr", "repeat_nearest", "sample_nearest",
     "sanitize_depth", "sanitize_mv", "sanitize_values", "splat_motion", "srgb_eotf",

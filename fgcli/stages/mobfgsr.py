@@ -168,12 +168,13 @@ class Warp(Stage):
     def skip(self, ctx):
         import torch
 
-        from fgcli.ops import sanitize_values
+        from fgcli.ops import sanitize_depth, sanitize_values
 
-        c1, c0 = ctx["color1"], ctx.get("color0")
+        c1, c0, d0 = ctx["color1"], ctx.get("color0"), ctx.get("depth0")
         ones = torch.ones(1, *c1.shape[-2:], dtype=torch.bool, device=c1.device)
         return {"s0": None if c0 is None else sanitize_values(c0), "s1": sanitize_values(c1),
-                "sd0": ctx.get("depth0"), "sd1": ctx["depth1"], "v0": ones, "v1": ones}
+                "sd0": None if d0 is None else sanitize_depth(d0),
+                "sd1": sanitize_depth(ctx["depth1"]), "v0": ones, "v1": ones}
 
     def run(self, ctx):
         from fgcli.ops import backward_warp, sample_nearest
@@ -197,7 +198,7 @@ class Blend(Stage):
             "(disoccluded background). Extrapolation: the frame-1 sample.")
     inputs = ("s1", "sd1", "v1", "alpha", "mode")
     optional_inputs = ("s0", "sd0", "v0", "motion")
-    outputs = ("color",)
+    outputs = ("color", "depth")
     options = (
         Option("t_d", "float", 0.02, "depth agreement threshold, relative to linear depth "
                "(paper: 0.0028 on [0,1] device depth)", range=(0.0, 10.0)),
@@ -208,23 +209,27 @@ class Blend(Stage):
     )
 
     def run(self, ctx):
-        from fgcli.ops import blend_interp
+        from fgcli.ops import blend_interp, blend_interp_depth
 
         if ctx["mode"] == "extrap":
-            return {"color": ctx["s1"]}
+            return {"color": ctx["s1"], "depth": ctx["sd1"]}
         dt = ctx["motion"].depth if self.target_depth and ctx.get("motion") is not None else None
-        return {"color": blend_interp(ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"],
-                                      ctx["v1"], dt, ctx["alpha"], self.t_d, self.t_b)}
+        args = (ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
+                ctx["alpha"])
+        # the generated frame's depth follows the same per-pixel choice as its color
+        return {"color": blend_interp(*args, self.t_d, self.t_b),
+                "depth": blend_interp_depth(ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
+                                            ctx["alpha"], self.t_d)}
 
 
 @register
 class MotionOut(Stage):
     name = "motion_out"
-    help = ("Depth and MVs of the generated frame (toward the previous output frame, linear "
-            "in time within the interval), so a downstream TAA/upscaler can consume it.")
+    help = ("MVs of the generated frame (toward the previous output frame, linear in time "
+            "within the interval), so a downstream TAA/upscaler can consume it.")
     inputs = ("motion", "alpha", "mode")
     optional_inputs = ("prev_time",)
-    outputs = ("depth", "mv")
+    outputs = ("mv",)
     options = ()
 
     def run(self, ctx):
@@ -236,4 +241,4 @@ class MotionOut(Stage):
         mv = generated_mv(m)
         if a > 0 and prev > 0:
             mv = mv * ((a - prev) / a)
-        return {"mv": mv, "depth": m.depth}
+        return {"mv": mv}
