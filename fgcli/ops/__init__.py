@@ -22,7 +22,7 @@ Extrapolation to 1 + alpha: splat with mode="extrap" (the public
 code: model="linear"), gap_fill(r), fill_extrap_holes(r, m1, d1), then
 backward_warp(color1, r.to1); generated_mv(r) points toward frame 1.
 
-Performance: ``python -m fgcli.ops._bench`` times every op at 1080p. Call
+Performance: ``python benchmarks/ops.py`` times every op at 1080p. Call
 ``tune_allocator()`` once per process (see its docstring): frame-sized temporaries
 otherwise pay for fresh page faults on every op.
 """

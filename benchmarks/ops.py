@@ -1,4 +1,4 @@
-"""Timing script for the ops (not a test): ``python -m fgcli.ops._bench [--size 1920x1080]``.
+"""Timing script for the ops (not a test): ``python benchmarks/ops.py [--size 1920x1080]``.
 
 Prints the median of a few runs per op at the given size on a synthetic scene (textured
 background, moving rectangles, camera pan), plus the ratio to a reference measured in the
