@@ -134,3 +134,27 @@ def project(cam: Camera, points_world: np.ndarray, width: int, height: int) -> n
     x = (ndc[0] + 1) / 2 * width
     y = (1 - ndc[1]) / 2 * height
     return np.stack([x, y, -v[2]], 1)
+
+
+def sky_motion(cam: Camera, cam_prev: Camera, width: int, height: int) -> np.ndarray:
+    """(2, H, W) motion vectors (toward the previous frame, pixels, y down) of points at
+    infinity (sky) from the two cameras alone: only the camera rotation and the change of
+    projection move them. Renderers such as Blender write 0 there even when the camera
+    turns; the reader replaces those flagged vectors with these.
+    """
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64) + 0.5
+    ndc = np.stack([2 * xs / width - 1, 1 - 2 * ys / height, np.ones_like(xs),
+                    np.ones_like(xs)]).reshape(4, -1)
+    view = np.linalg.inv(np.asarray(cam.projection, float)) @ ndc
+    d_view = view[:3] / np.where(np.abs(view[3]) < 1e-12, 1e-12, view[3])
+    r = np.asarray(cam.world_to_camera, float)[:3, :3]
+    r_prev = np.asarray(cam_prev.world_to_camera, float)[:3, :3]
+    d_prev = r_prev @ (np.linalg.inv(r) @ d_view)  # direction in the previous view space
+    clip = np.asarray(cam_prev.projection, float) @ np.vstack([d_prev, np.zeros((1, d_prev.shape[1]))])
+    w = np.where(np.abs(clip[3]) < 1e-12, 1e-12, clip[3])
+    px = (clip[0] / w + 1) / 2 * width
+    py = (1 - clip[1] / w) / 2 * height
+    mv = np.stack([px.reshape(height, width) - xs, py.reshape(height, width) - ys])
+    behind = (clip[3] <= 0).reshape(height, width)  # direction behind the previous camera
+    mv[:, behind] = 0.0
+    return np.clip(mv, -1e6, 1e6).astype(np.float32)

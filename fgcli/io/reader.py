@@ -120,6 +120,7 @@ class SequenceReader:
                 raw.helpers.add("depth")
         if raw.camera is None and n in self.sidecar:
             raw.camera = self.sidecar[n]
+        self._fill_sky_vectors(raw)
         if not self._depth_checked and raw.arrays.get("depth") is not None:
             self._depth_checked = True
             why = depth_suspicion(raw.arrays["depth"])
@@ -176,6 +177,42 @@ class SequenceReader:
                 f"{sequence._fmt(sorted(all_frames))}; " + "; ".join(parts))
 
     _depth_checked = False
+    _sky_note = False
+
+    def camera_of(self, n: int):
+        """Camera of frame n on disk (header attributes or cameras.json), or None."""
+        if n in self.sidecar:
+            return self.sidecar[n]
+        if n not in self.all_files:
+            return None
+        header = self._header(n, self.all_files[n])
+        part = self.info.part_of("color") if "color" in self.info.names else 0
+        cam, _ = cameras.from_header_attributes(header.parts[part].attributes)
+        return cam
+
+    def _fill_sky_vectors(self, raw) -> None:
+        """Flagged sky vectors (Blender writes 0 there even when the camera moves) are
+        recomputed from the two cameras when both are known (cameras.sky_motion)."""
+        valid = raw.valid.get("mv")
+        depth = raw.arrays.get("depth")
+        if valid is None or depth is None or raw.camera is None or "mv" not in raw.arrays:
+            return
+        sky = ~valid & ~np.isfinite(depth)
+        if not sky.any():
+            return
+        cam_prev = self.camera_of(raw.number - self.disk_step)
+        if cam_prev is None:
+            return
+        mv = cameras.sky_motion(raw.camera, cam_prev, self.width, self.height)
+        raw.arrays["mv"] = np.where(sky, mv, raw.arrays["mv"]).astype(np.float32)
+        valid = valid | sky
+        if valid.all():
+            raw.valid.pop("mv")
+        else:
+            raw.valid["mv"] = valid
+        if not self._sky_note:
+            self._sky_note = True
+            self.notes.append("sky vectors (flagged by the layout) computed from the cameras")
 
     def warn_nonfinite(self) -> None:
         """One warning per sequence naming the frames where NaN/Inf were replaced."""
