@@ -161,8 +161,13 @@ def test_eval_factor_json_and_ranking(half_rate, tmp_path):
     js = tmp_path / "e.json"
     r = CliRunner().invoke(cli, ["eval", str(full), "--factor", "2", "--pipeline", "all",
                                  "--variant", "mob-fgsr:motion=linear", "--json", str(js),
-                                 "--no-progress", "--no-hdr-flip"])
+                                 "--no-progress", "--no-hdr-flip", "--report",
+                                 str(tmp_path / "rep")])
     assert r.exit_code == 0, r.output
+    pngs = sorted(os.listdir(tmp_path / "rep"))
+    assert {"quality_vs_time.png", "stage_times.png", "worst_mob-fgsr.png",
+            "worst_blend.png"} <= set(pngs)
+    assert all((tmp_path / "rep" / p).read_bytes()[:4] == b"\x89PNG" for p in pngs)
     assert "| mob-fgsr |" in r.output
     res = json.loads(js.read_text())["pipelines"]
     for name in ("mob-fgsr", "mob-fgsr:motion=linear", "mv-warp", "blend", "repeat"):
