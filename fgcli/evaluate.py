@@ -266,7 +266,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     import torch
     from tqdm import tqdm
 
-    from fgcli.pipeline import Timings, run_stages
+    from fgcli.pipeline import Timings, frame_facts, run_stages
     from fgcli.runner import check_device, device_sync, make_ctx
 
     check_device(device)
@@ -294,13 +294,15 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
             if task.target not in masks_cache:
                 masks_cache[task.target] = target_masks(src, task, gt)
             dis, mov = masks_cache[task.target]
+            g0 = f0.to(device) if f0 is not None else None
+            g1 = f1.to(device)
+            facts = frame_facts(make_ctx(g0, g1, task.alpha, mode))  # once for all pipelines
             for p, stages, tm, sc in built:
-                ctx = make_ctx(f0.to(device) if f0 is not None else None, f1.to(device),
-                               task.alpha, mode)
+                ctx = make_ctx(g0, g1, task.alpha, mode)
                 ctx["prev_time"] = task.prev_time
                 ctx["state"] = None
                 ctx = run_stages(stages, ctx, tm, label=str(task.target), sync=sync,
-                                 measure_skips=True)
+                                 measure_skips=True, facts=dict(facts))
                 score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip)
                 if keep_worst:
                     w = worst.get(p.label)

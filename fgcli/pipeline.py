@@ -243,6 +243,8 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
     """Cheap per-frame facts computed once; stages use them in needed()."""
     import torch
 
+    t0 = time.perf_counter()
+
     mv1 = ctx.get("mv1")
     any_motion = bool(mv1 is not None and torch.count_nonzero(mv1).item() > 0)
     mv0 = ctx.get("mv0")
@@ -261,20 +263,33 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
         import numpy as np
 
         facts["camera_moved"] = not np.allclose(cam0.world_to_camera, cam1.world_to_camera)
+    facts["_ms"] = (time.perf_counter() - t0) * 1000.0
     return facts
 
 
 def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timings | None = None,
                label: str = "", sync=None, measure_skips: bool = False,
-               detect_cuts: bool = True) -> dict:
+               detect_cuts: bool = True, facts: dict | None = None) -> dict:
     """Run the built stages on one frame's context. Returns the context with outputs.
+
+    facts: the cheap per-frame facts (frame_facts) when the caller computed them once for
+    several pipelines (their cost, facts["_ms"], is still charged to each). They are timed
+    as the pseudo-stage "facts" (motion test, scene-cut histograms).
 
     A stage whose needed() says no is skipped (its exact skip() outputs are used) and logged
     with the reason. measure_skips: the first time a stage is skipped before it has ever
     run, run it anyway once (output discarded) so the time saved is measured, not guessed.
     """
     t_all = time.perf_counter()
-    facts = frame_facts(ctx, detect_cuts)
+    shared_ms = 0.0
+    if facts is not None:
+        shared_ms = float(facts.get("_ms", 0.0))
+    if facts is None:
+        facts = frame_facts(ctx, detect_cuts)
+        if timings is not None:
+            timings.add("facts", (time.perf_counter() - t_all) * 1000.0)
+    elif timings is not None:  # computed once, shared by several pipelines: still charged
+        timings.add("facts", shared_ms)
     ctx["facts"] = facts
     if facts["scene_cut"]:
         # a camera cut between the two rendered frames: never smear two shots together;
@@ -284,7 +299,7 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
             for spec, _ in stages:
                 timings.skipped.append((label, spec.id, f"scene cut (score "
                                         f"{facts['scene_change']:.2f})"))
-            timings.total.append((time.perf_counter() - t_all) * 1000.0)
+            timings.total.append((time.perf_counter() - t_all) * 1000.0 + shared_ms)
         return ctx
     for spec, stage in stages:
         t0 = time.perf_counter()
@@ -313,7 +328,7 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
     if sync is not None:
         sync()
     if timings is not None:
-        timings.total.append((time.perf_counter() - t_all) * 1000.0)
+        timings.total.append((time.perf_counter() - t_all) * 1000.0 + shared_ms)
     missing = [k for k in FINAL_OUTPUTS if ctx.get(k) is None]
     if missing:
         raise UsageError(f"pipeline produced no {', '.join(missing)} (check its stages)")
