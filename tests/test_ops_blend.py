@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fgcli.ops import (blend_interp, blend_linear, brightness_difference, luminance, mulaw,
+from fgcli.ops import (blend_interp, blend_interp_depth, blend_linear, brightness_difference, luminance, mulaw,
                        srgb_eotf, srgb_oetf, to_display)
 
 INF = float("inf")
@@ -195,3 +195,21 @@ def test_tune_allocator_is_safe_to_call():
     from fgcli.ops import tune_allocator
     assert tune_allocator() in (True, False)
     assert tune_allocator() in (True, False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 6), st.integers(0, 10_000),
+       st.sampled_from([0.0, 0.3, 0.5, 0.7, 1.0]), st.booleans())
+def test_blend_return_depth_equals_blend_interp_depth(h, w, seed, alpha, with_target):
+    """One pass (colour + depth) gives exactly the colour of blend_interp and the depth of
+    blend_interp_depth, for random validity, agreeing/disagreeing depths, sky."""
+    g = torch.Generator().manual_seed(seed)
+    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    c0, c1 = r(3, h, w), r(3, h, w)
+    d0 = torch.where(r(1, h, w) < 0.2, torch.full((1, h, w), float("inf")), 1 + 3 * r(1, h, w))
+    d1 = torch.where(r(1, h, w) < 0.5, d0, 1 + 3 * r(1, h, w))
+    v0, v1 = r(1, h, w) < 0.8, r(1, h, w) < 0.8
+    dt = torch.where(r(1, h, w) < 0.5, d0, d1) if with_target else None
+    color, depth = blend_interp(c0, c1, d0, d1, v0, v1, dt, alpha, return_depth=True)
+    assert torch.equal(color, blend_interp(c0, c1, d0, d1, v0, v1, dt, alpha))
+    assert torch.equal(depth, blend_interp_depth(d0, d1, v0, v1, dt, alpha))

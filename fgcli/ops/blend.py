@@ -41,7 +41,7 @@ def _agree(x, y, t_d):
 def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: torch.Tensor,
                  d1_sample: torch.Tensor, valid0: torch.Tensor, valid1: torch.Tensor,
                  d_target: torch.Tensor | None = None, alpha: float = 0.5,
-                 t_d_rel: float = T_D_REL, t_b: float = T_B) -> torch.Tensor:
+                 t_d_rel: float = T_D_REL, t_b: float = T_B, return_depth: bool = False):
     """Mob-FGSR Eq. 1: combine frame 0 and frame 1 warped to time alpha.
 
     Per pixel, with d0, d1 the warped depths and B the brightness difference
@@ -69,7 +69,9 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
         (All may carry a leading batch dim.)
 
     Returns:
-        (C, H, W) float32 colour, finite (NaN -> 0, inf -> 1e30 in the inputs).
+        (C, H, W) float32 colour, finite (NaN -> 0, inf -> 1e30 in the inputs); with
+        return_depth, ``(colour, depth)`` where depth is exactly ``blend_interp_depth`` of
+        the same inputs, computed from the same masks in one pass.
     """
     c0 = check_tensor(c0_sample, "c0_sample")
     c1 = check_tensor(c1_sample, "c1_sample")
@@ -89,10 +91,8 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
     tb = check_alpha(t_b, "t_b", 0.0, None)
     c0 = sanitize_values(c0)
     c1 = sanitize_values(c1)
-    if a == 0.0:
-        return c0.clone()
-    if a == 1.0:
-        return c1.clone()
+    if (a == 0.0 or a == 1.0) and not return_depth:
+        return (c0 if a == 0.0 else c1).clone()
     d0 = sanitize_depth(d0)
     d1 = sanitize_depth(d1)
     # Every case of Eq. 1 is lerp(c0, c1, w) with w in {0, 1, alpha}: build w (one channel)
@@ -110,15 +110,23 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
         m0 = _agree(d0, dt, t_d)
         m1 = _agree(d1, dt, t_d)
         take0 = torch.where(m0 ^ m1, m0, take0)
+    dis = both & ~agree
+    # choice weights with the validity and disocclusion cases applied last (they win)
+    pick0 = (dis & take0) | (v0 & ~v1)
+    pick1 = (dis & ~take0) | (v1 & ~v0)
+    none = ~(v0 | v1)
     w = torch.full_like(d0, a)
     w.masked_fill_(agree & similar, near_w)
-    dis = both & ~agree
-    w.masked_fill_(dis & take0, 0.0)
-    w.masked_fill_(dis & ~take0, 1.0)
-    w.masked_fill_(v0 & ~v1, 0.0)
-    w.masked_fill_(v1 & ~v0, 1.0)
-    w.masked_fill_(~(v0 | v1), near_w)
-    return torch.lerp(c0, c1, w)
+    w.masked_fill_(pick0, 0.0).masked_fill_(pick1, 1.0).masked_fill_(none, near_w)
+    if a == 0.0 or a == 1.0:  # the generated frame is the rendered frame there
+        color = (c0 if a == 0.0 else c1).clone()
+    else:
+        color = torch.lerp(c0, c1, w)
+    if not return_depth:
+        return color
+    # depth: same surface -> the temporally nearer sample, else the colour's choice
+    take_d0 = pick0 | ((agree | none) & ~pick1 & (near_w == 0.0))
+    return color, torch.where(take_d0, d0, d1)
 
 
 def blend_interp_depth(d0_sample: torch.Tensor, d1_sample: torch.Tensor,

@@ -209,17 +209,16 @@ class Blend(Stage):
     )
 
     def run(self, ctx):
-        from fgcli.ops import blend_interp, blend_interp_depth
+        from fgcli.ops import blend_interp
 
         if ctx["mode"] == "extrap":
             return {"color": ctx["s1"], "depth": ctx["sd1"]}
         dt = ctx["motion"].depth if self.target_depth and ctx.get("motion") is not None else None
-        args = (ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
-                ctx["alpha"])
         # the generated frame's depth follows the same per-pixel choice as its color
-        return {"color": blend_interp(*args, self.t_d, self.t_b),
-                "depth": blend_interp_depth(ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
-                                            ctx["alpha"], self.t_d)}
+        color, depth = blend_interp(ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"],
+                                    ctx["v1"], dt, ctx["alpha"], self.t_d, self.t_b,
+                                    return_depth=True)
+        return {"color": color, "depth": depth}
 
 
 @register
