@@ -5,8 +5,16 @@ from __future__ import annotations
 from fgcli.stages.base import Option, Stage, register
 
 
-def _any_holes(ctx) -> bool:
-    return bool((~ctx["motion"].valid).any().item())
+class _HoleStage(Stage):
+    """A stage that refines ctx["motion"] where it has holes: not needed without holes."""
+
+    def needed(self, ctx, facts):
+        if not bool((~ctx["motion"].valid).any().item()):
+            return False, "no holes left in the splatted motion"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"motion": ctx["motion"]}
 
 
 @register
@@ -88,7 +96,7 @@ class Splat(Stage):
 
 
 @register
-class GapFill(Stage):
+class GapFill(_HoleStage):
     name = "gap_fill"
     help = ("Mob-FGSR refinement: fill splat cracks inside nearer surfaces (2x2-block rule); "
             "remaining holes fall back to linear motion of the previous vector.")
@@ -105,14 +113,6 @@ class GapFill(Stage):
                choices=("prev_mv", "none")),
     )
 
-    def needed(self, ctx, facts):
-        if not _any_holes(ctx):
-            return False, "no holes after splat"
-        return True, ""
-
-    def skip(self, ctx):
-        return {"motion": ctx["motion"]}
-
     def run(self, ctx):
         from fgcli.ops import gap_fill
 
@@ -126,21 +126,13 @@ class GapFill(Stage):
 
 
 @register
-class ExtrapHoleFill(Stage):
+class ExtrapHoleFill(_HoleStage):
     name = "extrap_fill"
     help = ("Mob-FGSR extrapolation disocclusion rule: a hole takes frame 1's vector at the "
             "pixel if the surface it points to is background, else zero motion.")
     inputs = ("motion", "mv1", "depth1_d")
     outputs = ("motion",)
     options = (Option("depth_threshold", "float", 1e-3, "relative depth margin", range=(0.0, 1.0)),)
-
-    def needed(self, ctx, facts):
-        if not _any_holes(ctx):
-            return False, "no holes left"
-        return True, ""
-
-    def skip(self, ctx):
-        return {"motion": ctx["motion"]}
 
     def run(self, ctx):
         from fgcli.ops import fill_extrap_holes
