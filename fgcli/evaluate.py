@@ -157,35 +157,27 @@ def target_masks(src, task: Task, gt: Frame, rel_tol: float = 0.05):
     """
     import torch
 
-    from fgcli.ops import backward_warp, sample_nearest
+    from fgcli.ops import backward_warp, disocclusion_mask, sample_nearest
 
     src_n = task.a if task.mode == "interp" else task.b
     H, W = gt.height, gt.width
     if gt.mv is None or gt.depth is None:
         return None, None
-    disp = torch.zeros(2, H, W)
+    disp = torch.zeros(2, H, W)  # chained displacement from the target to frame n - 1
     occluded = torch.zeros(1, H, W, dtype=torch.bool)
-    cur_depth = gt.depth
-    ok = True
+    cur_depth = gt.depth  # depth of the tracked surface in frame n
     for n in range(task.target, src_n, -1):
         fn = gt if n == task.target else src.fine_mv(n)
-        if fn is None or fn.mv is None:
-            ok = False
-            break
-        step_mv, _ = backward_warp(fn.mv, disp, mode="bilinear") if n != task.target else (fn.mv, None)
+        prev = src.input(n - 1) if n - 1 == src_n else src.fine_mv(n - 1)
+        if fn is None or fn.mv is None or prev is None or prev.depth is None:
+            return None, None
         if n != task.target:
             cur_depth, _ = sample_nearest(fn.depth, disp)
+            step_mv, _ = backward_warp(fn.mv, disp, mode="bilinear")
+        else:
+            step_mv = fn.mv
         disp = disp + step_mv
-        prev = src.input(n - 1) if n - 1 == src_n else src.fine_mv(n - 1)
-        if prev is None or prev.depth is None:
-            ok = False
-            break
-        d_prev, valid = sample_nearest(prev.depth, disp)
-        finite = torch.isfinite(cur_depth)
-        nearer = torch.where(finite, d_prev < cur_depth * (1 - rel_tol), torch.isfinite(d_prev))
-        occluded |= nearer | ~valid
-    if not ok:
-        return None, None
+        occluded |= disocclusion_mask(cur_depth, disp, prev.depth, rel_tol)
     moving = disp.norm(dim=0, keepdim=True) > 0.5
     return occluded, moving
 
@@ -223,7 +215,7 @@ class Scores:
                 "flip_disoccluded": self.flip_dis / self.n_dis if self.n_dis else float("nan"),
                 "psnr_moving": psnr_of(self.sse_mov, self.n_mov),
                 "flip_moving": self.flip_mov / self.n_mov if self.n_mov else float("nan"),
-                "disoccluded_fraction": None, "frames": len(self.psnr)}
+                "frames": len(self.psnr)}
 
 
 def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
