@@ -468,11 +468,26 @@ def test_shipped_sample_data(name):
     assert h.attributes["fgen:synth_hash"] == sc.hash
     ref = render(sc, 6.5, 6.0)
     ch = read_channels(path, [(0, c) for c in ("R", "G", "B", "Z", "mv.x", "mv.y")], h)
+    # Stored floats against floats computed now, on whatever CPU runs the test: torch picks
+    # other vector kernels on other CPUs (AVX-512 / AVX2 / default), so float32 results differ
+    # in the last bits. Tolerances, from float32 rounding (eps = 2**-23 = 1.19e-7):
+    # - depth is stored as float32; a ray-surface intersection is ~10 dependent float32
+    #   operations, each off by <= 0.5 ulp when the kernel reassociates, so 16 ulp relative
+    #   (rtol 2e-6) bounds it with margin; sky (inf) must stay inf.
+    # - color is stored as half (rel. step 2**-11 = 4.9e-4) after averaging 16 samples;
+    #   2e-3 of the frame's range is 4 half steps.
+    # - vectors are rounded to 1/1024 px when written; 1e-3 px is one rounding step.
+    # A pixel whose primary ray grazes a silhouette may hit the other surface after a 1-ulp
+    # change; such flips are allowed on at most 0.05% of pixels (18 of 36864) and nowhere else.
     color = np.stack([ch[(0, c)] for c in "RGB"])
-    assert np.abs(color - ref.color.numpy()).max() <= 2e-3 * max(1.0, float(ref.color.max()))
-    assert np.array_equal(ch[(0, "Z")], ref.depth[0].numpy())
+    depth = ch[(0, "Z")]
     mv = np.stack([ch[(0, "mv.x")], ch[(0, "mv.y")]])
-    assert np.abs(mv - ref.mv.numpy()).max() <= 1e-3
+    ref_depth = ref.depth[0].numpy()
+    assert np.array_equal(np.isinf(depth), np.isinf(ref_depth))
+    ok = np.isclose(depth, ref_depth, rtol=2e-6, atol=0.0)
+    ok &= (np.abs(color - ref.color.numpy()) <= 2e-3 * max(1.0, float(ref.color.max()))).all(0)
+    ok &= (np.abs(mv - ref.mv.numpy()) <= 1e-3).all(0)
+    assert (~ok).sum() <= 0.0005 * ok.size, f"{(~ok).sum()} pixels differ beyond float32 rounding"
 
 
 @pytest.mark.slow
