@@ -16,6 +16,7 @@ from fractions import Fraction
 
 from fgcli.errors import UsageError
 from fgcli.frame import Frame
+from fgcli.io import atomic
 from fgcli.pipeline import Pipeline, Timings, describe, run_stages
 
 
@@ -46,6 +47,49 @@ def timeline_scale(step: int, times: list[Fraction]) -> int:
     for t in times:
         m = math.lcm(m, (t * step).denominator)
     return m
+
+
+def parse_chunk(spec: str | None) -> tuple[int, int] | None:
+    """'K/N' (1 <= K <= N) -> (K, N); None -> None."""
+    if spec is None or spec == "":
+        return None
+    try:
+        k, n = (int(x) for x in str(spec).split("/"))
+    except ValueError:
+        raise UsageError(f"bad --chunk '{spec}' (use K/N, e.g. 3/8)") from None
+    if n < 1 or not 1 <= k <= n:
+        raise UsageError(f"bad --chunk '{spec}': need 1 <= K <= N")
+    return k, n
+
+
+def chunk_slice(total: int, k: int, n: int) -> range:
+    """Indices of part k (1-based) of n contiguous, near-equal parts of `total` items; the
+    n parts cover range(total) exactly once."""
+    return range((k - 1) * total // n, k * total // n)
+
+
+def pipeline_history(stages) -> int | None:
+    """Warm-up jobs the built stages need (Stage.history): None = from the sequence start."""
+    need = 0
+    for _, st in stages:
+        h = getattr(type(st), "history", 0)
+        if h is None:
+            return None
+        need = max(need, int(h))
+    return need
+
+
+def warmup_jobs(selected: list[int], history: int | None) -> list[int]:
+    """Job indices to run (in order) so that each selected job sees the state an
+    uninterrupted run gives it: the selected ones plus their `history` predecessors."""
+    if not selected:
+        return []
+    if history is None:
+        return list(range(0, max(selected) + 1))
+    run = set()
+    for i in selected:
+        run.update(range(max(0, i - history), i + 1))
+    return sorted(run)
 
 
 def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
@@ -165,29 +209,19 @@ def _progress(total: int, desc: str, enabled: bool):
                 leave=False)
 
 
-def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fraction],
-                 emit: str = "generated", device: str = "cpu", progress: bool = True,
-                 count: int = 1, out_layout: str = "fgen", half: bool = True,
-                 compression: str = "zip", command: str = "") -> dict:
-    """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
-    alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
-    OUT/fgen-run.json)."""
-    import torch
-
-    device = check_device(device)
-    stages = pipeline.build(mode)
-    numbers = reader.numbers
-    step = reader.step
+def plan_outputs(numbers: list[int], step: int, mode: str, times: list[Fraction],
+                 count: int = 1, emit: str = "generated",
+                 chunk: tuple[int, int] | None = None) -> dict:
+    """What a run makes, before any pixel is read: the generation jobs (a, b, alpha,
+    output number, previous alpha) in sequence order, the rendered frames copied through
+    (emit all) as (input number, output number), the timeline scale m, and for a chunk the
+    indices of its jobs ("mine") and its copies. "outputs": this run's output numbers."""
     if mode == "extrap":
         times = sorted({a * k for a in times for k in range(1, count + 1)})
         if len(numbers) > 1 and max(times) >= 1:
             raise UsageError("extrapolated frames would reach the next rendered frame "
                              "(alpha x count must be < 1)")
     m = timeline_scale(step, times)
-    timings = Timings()
-    cache = FrameCache(reader, timings, device)
-    state = RunState()
-    sync = device_sync(device)
     jobs = []  # (a_number or None, b_number, alpha, out_number, previous output time)
     if mode == "interp":
         if len(numbers) < 2:
@@ -201,12 +235,57 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
             for k, t in enumerate(times):
                 jobs.append((a, b, t, int((b + t * step) * m), times[k - 1] if k else 0))
     copies = [(n, n * m) for n in numbers] if emit == "all" else []
+    all_outputs = sorted([on for _, on in copies] + [j[3] for j in jobs])
+    if chunk is not None:
+        part = set(all_outputs[i] for i in chunk_slice(len(all_outputs), *chunk))
+        copies = [c for c in copies if c[1] in part]
+        mine = [i for i, j in enumerate(jobs) if j[3] in part]
+    else:
+        mine = list(range(len(jobs)))
+    outputs = sorted([on for _, on in copies] + [jobs[i][3] for i in mine])
+    return {"numbers": list(numbers), "step": step, "times": times, "m": m, "jobs": jobs,
+            "copies": copies, "mine": mine, "outputs": outputs, "total_outputs": len(all_outputs)}
+
+
+def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fraction],
+                 emit: str = "generated", device: str = "cpu", progress: bool = True,
+                 count: int = 1, out_layout: str = "fgen", half: bool = True,
+                 compression: str = "zip", command: str = "",
+                 chunk: tuple[int, int] | None = None, on_frame=None) -> dict:
+    """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
+    alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
+    OUT/fgen-run.json, or OUT/fgen-run.chunk-K-of-N.json for a chunk).
+
+    chunk: (K, N): write only part K of N contiguous parts of the output frames (ordered by
+    output frame number); the input frames those outputs need (the neighbour across a part
+    boundary, and the history of recurrent stages, replayed but not written) are read as
+    well, so the union of the N parts is byte-identical to one run.
+    on_frame: called with the number of output frames just finished (progress of an
+    executor that drives several runs)."""
+    import torch
+
+    device = check_device(device)
+    stages = pipeline.build(mode)
+    plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
+    numbers, step, times, m, jobs, copies, mine = (
+        plan["numbers"], plan["step"], plan["times"], plan["m"], plan["jobs"], plan["copies"],
+        plan["mine"])
+    out.check_all([out.path_for(on) for on in plan["outputs"]])
+    timings = Timings()
+    cache = FrameCache(reader, timings, device)
+    state = RunState()
+    sync = device_sync(device)
     pinfo = describe(pipeline)
     attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
                     "fgen:command_line": command, "fgen:pipeline_json": json.dumps(pinfo)}
-    written, skipped_existing = 0, 0
-    out.check_all([out.path_for(on) for *_, on in copies] + [out.path_for(j[3]) for j in jobs])
-    bar = _progress(len(jobs) + len(copies), f"{pipeline.label} {mode}", progress)
+    written, skipped_existing, replayed = 0, 0, 0
+    bar = _progress(len(mine) + len(copies), f"{pipeline.label} {mode}", progress)
+
+    def done(k: int = 1) -> None:
+        bar.update(k)
+        if on_frame is not None and k:
+            on_frame(k)
+
     writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")))
     wkw = {"layout": out_layout, "half": half, "compression": compression}
     try:
@@ -225,20 +304,28 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                     written += 1
                 else:
                     skipped_existing += 1
-                bar.update(1)
-            todo = [j for j in jobs if out.should_write(out.path_for(j[3]))]
-            skipped_existing += len(jobs) - len(todo)
-            bar.update(len(jobs) - len(todo))
-            for i, (a, b, t, on, prev_t) in enumerate(todo):
+                done(1)
+            write = [i for i in mine if out.should_write(out.path_for(jobs[i][3]))]
+            skipped_existing += len(mine) - len(write)
+            done(len(mine) - len(write))
+            # recurrent stages: replay (compute, do not write) the jobs their state needs
+            todo = warmup_jobs(write, pipeline_history(stages))
+            to_write = set(write)
+            replayed = len(todo) - len(write)
+            for i, ji in enumerate(todo):
+                a, b, t, on, prev_t = jobs[ji]
                 f1 = cache.get(b)
                 f0 = cache.get(a) if a is not None else None
                 if i + 1 < len(todo):  # decode the next pair while this one computes
-                    cache.prefetch(todo[i + 1][1])
-                    cache.prefetch(todo[i + 1][0])
+                    cache.prefetch(jobs[todo[i + 1]][1])
+                    cache.prefetch(jobs[todo[i + 1]][0])
                 ctx = make_ctx(f0, f1, float(t), mode)
                 ctx["state"] = state
                 ctx["prev_time"] = float(prev_t)
-                ctx = run_stages(stages, ctx, timings, label=str(on), sync=sync)
+                ctx = run_stages(stages, ctx, timings if ji in to_write else None,
+                                 label=str(on), sync=sync)
+                if ji not in to_write:
+                    continue
                 base, span = (b, step) if mode == "extrap" else (a, b - a)
                 gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1)
                 src = f"{a},{b}" if a is not None else f"{b}"
@@ -246,7 +333,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                               attributes={**attrs_common, "fgen:alpha": float(t),
                                           "fgen:source_frames": src})
                 written += 1
-                bar.update(1)
+                done(1)
     finally:
         writer.close()
         cache.close()
@@ -254,12 +341,13 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     reader.warn_nonfinite()
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
                "input": reader.folder, "input_frames": numbers, "timeline_scale": m,
+               "chunk": None if chunk is None else f"{chunk[0]}/{chunk[1]}",
+               "outputs": [os.path.basename(out.path_for(on)) for on in plan["outputs"]],
                "written": written, "skipped_existing": skipped_existing,
+               "replayed_for_history": replayed, "stale_temp_removed": len(out.stale_removed),
                "timings": timings.summary(),
                "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
                "command": command, "device": device}
-    tmp = os.path.join(out.path, ".fgen-tmp-run.json")
-    with open(tmp, "w") as fh:
-        json.dump(summary, fh, indent=1)
-    os.replace(tmp, os.path.join(out.path, "fgen-run.json"))
+    name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
+    atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))
     return summary

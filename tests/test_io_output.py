@@ -55,7 +55,7 @@ def test_unwritable_output(tmp_path, monkeypatch):
     def deny(*a, **k):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(output.tempfile, "mkstemp", deny)
+    monkeypatch.setattr(output.atomic, "make_temp", deny)
     with pytest.raises(OutputError, match="not writable: Permission denied"):
         OutputFolder(str(ro), str(tmp_path / "in"))
 

@@ -1,4 +1,5 @@
-"""Shared body of `fgen interpolate` and `fgen extrapolate`."""
+"""Shared body of `fgen interpolate` and `fgen extrapolate`: inputs (one or several
+sequences), farm chunks, and the executor (in-process, or Dask distributed)."""
 from __future__ import annotations
 
 import sys
@@ -6,6 +7,27 @@ import sys
 import click
 
 from fgcli.io.options import INPUT_KEYS, OUTPUT_KEYS, input_options, output_options
+
+# options that change how a run is carried out, never what it writes: left out of the
+# command line recorded in every output header, so a chunked, resumed or cluster run
+# writes the same bytes as one plain run
+EXECUTION_ONLY = {"--chunk": 1, "--executor": 1, "--scheduler": 1, "--workers": 1,
+                  "--resume": 0, "--overwrite": 0, "--no-progress": 0, "--json": 1}
+
+
+def recorded_command(argv: list[str]) -> str:
+    """`fgen ...` as recorded in outputs: argv without the execution-only options."""
+    out, skip = [], 0
+    for a in argv:
+        if skip:
+            skip -= 1
+            continue
+        name = a.split("=", 1)[0]
+        if name in EXECUTION_ONLY:
+            skip = EXECUTION_ONLY[name] if "=" not in a else 0
+            continue
+        out.append(a)
+    return " ".join(["fgen"] + out)
 
 
 def common(f):
@@ -17,8 +39,24 @@ def common(f):
     f = click.option("--no-progress", is_flag=True, help="Hide the progress bar.")(f)
     f = click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
                      help="Also write the run summary (timings, skips) to this JSON file.")(f)
+    f = click.option("--chunk", default=None, metavar="K/N",
+                     help="Farm chunk: write only part K of N contiguous parts of the output "
+                          "frames (reads the inputs they need); N runs = one run.")(f)
+    f = executor_options(f)
     f = output_options(f)
     f = input_options(f)
+    return f
+
+
+def executor_options(f):
+    f = click.option("--executor", type=click.Choice(["local", "dask"]), default="local",
+                     show_default=True,
+                     help="local: this process. dask: spread sequences and chunks over Dask "
+                          "distributed workers.")(f)
+    f = click.option("--scheduler", default=None, metavar="ADDRESS",
+                     help="Dask scheduler (tcp://host:8786); default: a local cluster.")(f)
+    f = click.option("--workers", type=int, default=None,
+                     help="Workers of the local Dask cluster (default: one per core).")(f)
     return f
 
 
@@ -26,33 +64,62 @@ def split_kwargs(kw):
     return ({k: kw[k] for k in INPUT_KEYS if k in kw}, {k: kw[k] for k in OUTPUT_KEYS if k in kw})
 
 
-def run(mode, in_dir, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,
-        count, in_kw, out_kw):
+def check_executor(executor, scheduler, workers, chunk=None):
+    from fgcli.errors import UsageError
+
+    if executor != "dask" and (scheduler or workers):
+        raise UsageError("--scheduler and --workers need --executor dask")
+    if executor == "dask" and chunk:
+        raise UsageError("--chunk and --executor dask do not combine: the executor makes "
+                         "its own chunks")
+    if workers is not None and workers < 1:
+        raise UsageError("--workers must be >= 1")
+
+
+def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,
+        count, in_kw, out_kw, chunk=None, executor="local", scheduler=None, workers=None):
     import json
 
     from fgcli import pipeline as pl
-    from fgcli.io.options import open_input, open_output
-    from fgcli.runner import run_sequence
+    from fgcli.batch import RunTask, expand_inputs, run_local
+    from fgcli.runner import parse_chunk
 
-    p = pl.load(pipeline)
+    check_executor(executor, scheduler, workers, chunk)
+    p = pl.load(pipeline)  # fail early on a bad pipeline or option
     if sets:
-        p = p.with_overrides(list(sets), label=p.label)
-    fields = set(p.requires)
-    reader = open_input(in_dir, fields=fields, **in_kw)
-    out = open_output(out_dir, reader, **out_kw)
-    summary = run_sequence(reader, out, p, mode, times, emit=emit, device=device,
-                           progress=not no_progress, count=count,
-                           out_layout=out.layout, half=out.half, compression=out.compression,
-                           command=" ".join(["fgen"] + sys.argv[1:]))
-    t = summary["timings"]
-    stages = ", ".join(f"{k} {v:.1f}" for k, v in t["stages"].items())
-    click.echo(f"{summary['written']} frames written to {out_dir} "
-               f"({summary['skipped_existing']} already complete); "
-               f"{t['ms_per_frame']:.1f} ms/frame compute [{stages}], "
-               f"read {t['io_read_ms']:.1f} ms, write {t['io_write_ms']:.1f} ms per frame", err=True)
-    if t["skipped"]:
-        click.echo(f"skipped {t['skipped']} stage runs where not needed "
-                   f"(saving ~{t['ms_saved_per_frame']:.1f} ms/frame); see fgen-run.json", err=True)
+        p.with_overrides(list(sets), label=p.label)
+    ch = parse_chunk(chunk)
+    seqs = expand_inputs(in_dirs, out_dir, in_kw)
+    command = recorded_command(sys.argv[1:])
+    tasks = [RunTask(mode=mode, folder=folder, pattern=pattern, out_dir=od, pipeline=pipeline,
+                     sets=tuple(sets), device=device, times=tuple(times), emit=emit, count=count,
+                     in_kw={k: v for k, v in in_kw.items() if k != "pattern"}, out_kw=out_kw,
+                     command=command, chunk=ch, name=name)
+             for name, folder, pattern, od in seqs]
+    if executor == "dask":
+        from fgcli.executor import run_dask
+
+        results = run_dask(tasks, scheduler=scheduler, workers=workers,
+                           progress=not no_progress)
+    else:
+        results = run_local(tasks, progress=not no_progress)
+    summaries = [s for _, s in results]
+    for task, summary in results:
+        t = summary["timings"]
+        stages = ", ".join(f"{k} {v:.1f}" for k, v in t["stages"].items())
+        where = task.out_dir + (f" (chunk {summary['chunk']})" if summary.get("chunk") else "")
+        click.echo(f"{summary['written']} frames written to {where} "
+                   f"({summary['skipped_existing']} already complete); "
+                   f"{t['ms_per_frame']:.1f} ms/frame compute [{stages}], "
+                   f"read {t['io_read_ms']:.1f} ms, write {t['io_write_ms']:.1f} ms per frame",
+                   err=True)
+        if t["skipped"]:
+            click.echo(f"skipped {t['skipped']} stage runs where not needed "
+                       f"(saving ~{t['ms_saved_per_frame']:.1f} ms/frame); see fgen-run.json",
+                       err=True)
+        if summary.get("stale_temp_removed"):
+            click.echo(f"removed {summary['stale_temp_removed']} temporary files left by a "
+                       "killed run", err=True)
     if json_out:
         with open(json_out, "w") as fh:
-            json.dump(summary, fh, indent=1)
+            json.dump(summaries[0] if len(summaries) == 1 else summaries, fh, indent=1)

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from fgcli.errors import InputError, OutputError
+from fgcli.io import atomic
 
 # attributes that describe the file's structure, not its content: never carried over
 STRUCTURAL_ATTRIBUTES = {"compression", "type", "chunkCount", "version", "tiles",
@@ -338,8 +338,7 @@ def _make_spec(channels: dict, types: dict | None, attributes: dict | None,
 
 def _temp_in(folder: str, path: str) -> str:
     try:
-        fd, tmp = tempfile.mkstemp(prefix=".fgen-tmp-", suffix=".exr", dir=folder)
-        os.close(fd)
+        tmp = atomic.make_temp(folder, suffix=".exr")  # names its writer (stale-file cleanup)
     except OSError as e:
         raise OutputError(f"cannot write to output folder: {e.strerror}", file=path) from None
     return tmp
@@ -354,7 +353,7 @@ def _finish(tmp: str, path: str) -> None:
     except OSError:
         pass
     try:
-        os.replace(tmp, path)
+        atomic.replace(tmp, path)  # data on disk, then the rename
     except OSError as e:
         raise OutputError(f"cannot rename into place: {e.strerror}", file=path) from None
 

@@ -12,7 +12,7 @@ import numpy as np
 from fgcli import __version__
 from fgcli.errors import InputError, OutputError
 from fgcli.frame import Camera, Frame
-from fgcli.io import cameras, exr
+from fgcli.io import atomic, cameras, exr
 
 # canonical fgen layout channel names
 FGEN_CHANNELS = {
@@ -106,7 +106,4 @@ def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
 def write_sidecar_cameras(folder: str, cams: dict[int, Camera], extra: dict | None = None) -> None:
     data = dict(extra or {})
     data["frames"] = [{"frame": n, **cams[n].to_json()} for n in sorted(cams)]
-    tmp = os.path.join(folder, ".fgen-tmp-cameras.json")
-    with open(tmp, "w") as fh:
-        json.dump(data, fh, indent=1)
-    os.replace(tmp, os.path.join(folder, "cameras.json"))
+    atomic.write_text(os.path.join(folder, "cameras.json"), json.dumps(data, indent=1))

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 
 from fgcli import __version__
 from fgcli.errors import InputError, OutputError
 from fgcli.frame import Frame
-from fgcli.io import exr
+from fgcli.io import atomic, exr
 from fgcli.io.frames import write_frame
 
 
@@ -95,12 +94,12 @@ class OutputFolder:
             raise OutputError(f"cannot create output folder: {e.strerror}",
                               file=self.path) from None
         self._check_writable()
+        # temporary files of killed runs into this folder (their writer is gone): remove
+        self.stale_removed = atomic.remove_stale(self.path)
 
     def _check_writable(self) -> None:
         try:
-            fd, tmp = tempfile.mkstemp(prefix=".fgen-tmp-probe-", dir=self.path)
-            os.close(fd)
-            os.unlink(tmp)
+            os.unlink(atomic.make_temp(self.path, suffix=".probe"))
         except OSError as e:
             raise OutputError(f"output folder is not writable: {e.strerror}",
                               file=self.path) from None

@@ -105,13 +105,10 @@ def parse_frames(spec: str) -> list[int]:
     return out
 
 
-def discover(folder: str, pattern: str | None = None, frames: str | None = None,
-             allow_gaps: bool = False) -> Sequence:
-    """Find the one EXR sequence in `folder`.
-
-    pattern: picks a sequence when there are several: a glob on file names ('shot.*.exr'),
-    or a prefix ('shot.'), or the '#'-padded pattern printed in the error ('shot.####.exr').
-    """
+def find_sequences(folder: str, pattern: str | None = None) -> list[Sequence]:
+    """Every EXR sequence in `folder` that `pattern` matches (all when None), in name order.
+    pattern: a glob on file names ('shot.*.exr'), a prefix ('shot.') or the '#'-padded
+    pattern of a sequence ('shot.####.exr')."""
     folder = str(folder)
     if not os.path.isdir(folder):
         raise InputError("not a folder", file=folder)
@@ -135,6 +132,17 @@ def discover(folder: str, pattern: str | None = None, frames: str | None = None,
         seqs = [s for s in seqs if ok(s)]
         if not seqs:
             raise InputError(f"no sequence matches --pattern '{pattern}'", file=folder)
+    return sorted(seqs, key=lambda q: (q.prefix, q.padding))
+
+
+def discover(folder: str, pattern: str | None = None, frames: str | None = None,
+             allow_gaps: bool = False) -> Sequence:
+    """Find the one EXR sequence in `folder`.
+
+    pattern: picks a sequence when there are several: a glob on file names ('shot.*.exr'),
+    or a prefix ('shot.'), or the '#'-padded pattern printed in the error ('shot.####.exr').
+    """
+    seqs = find_sequences(folder, pattern)
     if len(seqs) > 1:
         listing = "; ".join(f"{s.pattern} ({len(s.files)} frames {s.frames[0]}-{s.frames[-1]})"
                             for s in seqs)

@@ -72,6 +72,11 @@ class Stage:
     outputs: ClassVar[tuple[str, ...]] = ()
     options: ClassVar[tuple[Option, ...]] = ()
     optional_inputs: ClassVar[tuple[str, ...]] = ()
+    # Recurrent state: how many earlier jobs (generated frames, in sequence order) must have
+    # run through this stage for its state to be what an uninterrupted run has at a job.
+    # 0: no state; None: every job since the start of the sequence. The runner replays
+    # them (computed, not written) when a run starts mid-sequence (--chunk, --resume).
+    history: ClassVar[int | None] = 0
 
     def __init__(self, where: str = "", **opts):
         table = {o.name: o for o in self.options}

@@ -1,0 +1,144 @@
+"""Batch runs: several sequences, farm chunks, and the task an executor runs.
+
+A RunTask is everything one `run_sequence` call needs, as plain picklable data, so the same
+task runs in this process (the default executor) or on a Dask worker (fgcli.executor).
+No torch or Dask import at module level.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field, replace
+
+from fgcli.errors import FgenError, UsageError
+
+
+@dataclass(frozen=True)
+class RunTask:
+    mode: str  # "interp" | "extrap"
+    folder: str
+    pattern: str | None
+    out_dir: str
+    pipeline: str
+    sets: tuple = ()
+    device: str = "cpu"
+    times: tuple = ()
+    emit: str = "generated"
+    count: int = 1
+    in_kw: dict = field(default_factory=dict)
+    out_kw: dict = field(default_factory=dict)
+    command: str = ""
+    chunk: tuple | None = None  # (K, N)
+    name: str = ""  # the sequence's name in messages
+
+    def label(self) -> str:
+        c = f" chunk {self.chunk[0]}/{self.chunk[1]}" if self.chunk else ""
+        return f"{self.name or self.folder}{c}"
+
+
+def _seq_name(prefix: str) -> str:
+    return re.sub(r"[._\-]+$", "", prefix)
+
+
+def expand_inputs(in_dirs, out_dir: str, in_kw: dict) -> list[tuple[str, str, str | None, str]]:
+    """(name, folder, pattern, output folder) per input sequence. One sequence writes into
+    OUT itself; several (several input folders, or a --pattern matching several sequences
+    in a folder) write into OUT/<name>/, name = the folder's name and/or the sequence's
+    file prefix."""
+    from fgcli.io.sequence import find_sequences
+
+    if isinstance(in_dirs, str):
+        in_dirs = [in_dirs]
+    pattern = in_kw.get("pattern")
+    found = []
+    for folder in in_dirs:
+        if pattern is None:  # one sequence per folder, as a plain run expects
+            found.append((folder, None, [None]))
+            continue
+        seqs = find_sequences(folder, pattern)
+        found.append((folder, pattern, [s.pattern for s in seqs] if len(seqs) > 1 else [pattern]))
+    out = []
+    several = len(in_dirs) > 1 or any(len(p) > 1 for _, _, p in found)
+    for folder, pattern, pats in found:
+        base = os.path.basename(os.path.normpath(folder))
+        for p in pats:
+            if not several:
+                out.append((base, folder, p, out_dir))
+                continue
+            parts = []
+            if len(in_dirs) > 1:
+                parts.append(base)
+            if len(pats) > 1:
+                parts.append(_seq_name(p.split("#")[0]) or "seq")
+            name = "/".join(parts)
+            out.append((name, folder, p, os.path.join(out_dir, *parts)))
+    dests = [o[3] for o in out]
+    dup = sorted({d for d in dests if dests.count(d) > 1})
+    if dup:
+        raise UsageError(f"several inputs would write into one output folder: {dup[0]} "
+                         "(give the input folders distinct names)")
+    return out
+
+
+def open_task(task: RunTask):
+    """The reader, output folder and pipeline of a task."""
+    from fgcli import pipeline as pl
+    from fgcli.io.options import open_input, open_output
+
+    p = pl.load(task.pipeline)
+    if task.sets:
+        p = p.with_overrides(list(task.sets), label=p.label)
+    reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern, **task.in_kw)
+    out = open_output(task.out_dir, reader, **task.out_kw)
+    return reader, out, p
+
+
+def plan_task(task: RunTask) -> dict:
+    """The task's plan (fgcli.runner.plan_outputs) with output paths, reading headers only."""
+    from fgcli.io.options import open_input
+    from fgcli.runner import plan_outputs
+
+    from fgcli import pipeline as pl
+
+    p = pl.load(task.pipeline)
+    reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern, **task.in_kw)
+    plan = plan_outputs(reader.numbers, reader.step, task.mode, list(task.times), task.count,
+                        task.emit, task.chunk)
+    return plan, reader
+
+
+def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
+    """Run one task in this process; the run summary."""
+    from fgcli.runner import run_sequence
+
+    reader, out, p = open_task(task)
+    summary = run_sequence(reader, out, p, task.mode, list(task.times), emit=task.emit,
+                           device=task.device, progress=progress, count=task.count,
+                           out_layout=out.layout, half=out.half, compression=out.compression,
+                           command=task.command, chunk=task.chunk, on_frame=on_frame)
+    summary["task"] = task.label()
+    return summary
+
+
+def run_local(tasks: list[RunTask], progress: bool = True) -> list[tuple[RunTask, dict]]:
+    """The default executor: the tasks one after another in this process."""
+    return [(t, execute(t, progress=progress)) for t in tasks]
+
+
+def split_chunks(tasks: list[RunTask], per_sequence: int) -> list[RunTask]:
+    """Each task as `per_sequence` chunks (a task already chunked stays as it is)."""
+    out = []
+    for t in tasks:
+        if t.chunk is not None or per_sequence <= 1:
+            out.append(t)
+        else:
+            out.extend(replace(t, chunk=(k, per_sequence)) for k in range(1, per_sequence + 1))
+    return out
+
+
+def error_result(task: RunTask, err: BaseException) -> dict:
+    """A failed task, as data an executor can send back (exceptions with extra fields do
+    not always survive pickling)."""
+    code = err.exit_code if isinstance(err, FgenError) else 1
+    msg = err.format_message() if isinstance(err, FgenError) else f"{type(err).__name__}: {err}"
+    return {"error": msg, "exit_code": code, "task": task.label()}
