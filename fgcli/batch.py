@@ -142,3 +142,54 @@ def error_result(task: RunTask, err: BaseException) -> dict:
     code = err.exit_code if isinstance(err, FgenError) else 1
     msg = err.format_message() if isinstance(err, FgenError) else f"{type(err).__name__}: {err}"
     return {"error": msg, "exit_code": code, "task": task.label()}
+
+
+@dataclass(frozen=True)
+class EvalTask:
+    """One `fgen eval` of one sequence (picklable, for an executor)."""
+
+    in_dir: str
+    gt_dir: str | None
+    factor: int | None
+    pipelines: tuple  # pipeline names / variants, resolved
+    mode: str
+    in_kw: dict
+    device: str = "cpu"
+    hdr_flip: bool = True
+    keep_worst: bool = False
+    name: str = ""
+
+    def label(self) -> str:
+        return self.name or self.in_dir
+
+
+def eval_source(in_dir: str, gt_dir: str | None, factor: int | None, in_kw: dict):
+    """The frames to score: IN + GT, IN held out by FACTOR, or a folder with input/ and gt/
+    (the bundled scenes); FACTOR 2 when nothing says otherwise."""
+    from fgcli import evaluate as ev
+    from fgcli.io.options import open_input
+
+    if gt_dir and factor:
+        raise UsageError("use either --gt or --factor")
+    if not gt_dir and not factor:
+        if os.path.isdir(os.path.join(in_dir, "input")) and os.path.isdir(os.path.join(in_dir, "gt")):
+            in_dir, gt_dir = os.path.join(in_dir, "input"), os.path.join(in_dir, "gt")
+        else:
+            factor = 2
+    if gt_dir:
+        return ev.GTSource(open_input(in_dir, **in_kw), open_input(gt_dir, **in_kw))
+    return ev.HeldOutSource(open_input(in_dir, **in_kw), factor)
+
+
+def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:
+    """Score one sequence; the result of fgcli.evaluate.evaluate plus its source's range."""
+    from fgcli import evaluate as ev
+    from fgcli import pipeline as pl
+
+    src = eval_source(task.in_dir, task.gt_dir, task.factor, task.in_kw)
+    pipes = [pl.load(n) for n in task.pipelines]
+    res = ev.evaluate(src, pipes, task.mode, progress=progress,
+                      device=task.device, hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
+                      on_frame=on_frame)
+    res["sequence"] = task.label()
+    return res

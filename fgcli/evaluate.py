@@ -253,8 +253,9 @@ def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
 
 
 def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str = "cpu",
-             hdr_flip: bool = True, keep_worst: bool = False) -> dict:
-    """Run every pipeline on every task; returns {"pipelines": {label: {...}}, ...}."""
+             hdr_flip: bool = True, keep_worst: bool = False, on_frame=None) -> dict:
+    """Run every pipeline on every task; returns {"pipelines": {label: {...}}, ...}.
+    on_frame: called with 1 per scored (frame, pipeline) (an executor's progress)."""
     import torch
     from tqdm import tqdm
 
@@ -303,6 +304,8 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                                           "out": ctx["color"].detach().cpu().clone(),
                                           "gt": gt.color.clone()}
                 bar.update(1)
+                if on_frame is not None:
+                    on_frame(1)
     bar.close()
     res = {}
     for p, _, tm, sc in built:

@@ -52,6 +52,30 @@ def _run_task(task: RunTask, on_frame):
     return execute(task, progress=False, on_frame=on_frame)
 
 
+def _run_eval(task, on_frame):
+    from fgcli.batch import execute_eval
+
+    return execute_eval(task, progress=False, on_frame=on_frame)
+
+
+def eval_dask(tasks: list, scheduler: str | None = None, workers: int | None = None,
+              progress: bool = True, total_frames: int = 0) -> list[dict]:
+    """Score several sequences on Dask, one task each; results in order. Raises
+    ExecutorError naming the sequences that failed."""
+    cl = Cluster(scheduler, workers)
+    try:
+        results = cl.map(_run_eval, tasks, [t.label() for t in tasks], total_frames, progress,
+                         f"eval (dask, {cl.workers} workers)")
+    finally:
+        cl.close()
+    failed = [(t, r) for t, r in zip(tasks, results) if not (isinstance(r, dict) and "error" not in r)]
+    if failed:
+        raise ExecutorError(f"{len(failed)} of {len(tasks)} sequences failed: " + "; ".join(
+            f"{t.label()}: " + (r["error"] if isinstance(r, dict) else f"{type(r).__name__}: {r}")
+            for t, r in failed))
+    return results
+
+
 class Cluster:
     """A Dask client: on `scheduler`, or on a local cluster of `workers` processes
     (one thread each; torch gets cores / workers threads)."""

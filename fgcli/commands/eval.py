@@ -1,10 +1,12 @@
 import click
 
+from fgcli.commands._generate import executor_options
 from fgcli.io.options import input_options
 
 
 @click.command("eval")
-@click.argument("in_dir", type=click.Path(file_okay=False))
+@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(file_okay=False),
+                metavar="IN_DIR...")
 @click.option("--gt", "gt_dir", type=click.Path(file_okay=False), default=None,
               help="Ground-truth frames on the same frame-number timeline as IN.")
 @click.option("--factor", type=int, default=None,
@@ -21,15 +23,18 @@ from fgcli.io.options import input_options
 @click.option("--device", default="cpu", show_default=True)
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
 @click.option("--no-progress", is_flag=True)
+@executor_options
 @input_options
-def cmd(in_dir, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
-        no_hdr_flip, no_progress, **in_kw):
+def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
+        no_hdr_flip, no_progress, executor, scheduler, workers, **in_kw):
     """Score pipelines against ground truth (DESIGN.md section 4).
 
     \b
     fgen eval IN --gt GT       IN = rendered input, GT = reference frames between/after
     fgen eval FULL --factor 2  keep every 2nd frame, chain MVs, score the dropped ones
     fgen eval SCENE            a folder with input/ and gt/ (the bundled sample scenes)
+    fgen eval A B C            several sequences (one table each; --executor dask
+                               scores them on a Dask cluster)
 
     Color is scored display-referred: sRGB OETF of clip(linear, 0, 1) for PSNR, SSIM and
     LDR-FLIP; HDR-FLIP on linear color. Masked scores: disoccluded = ground-truth pixels
@@ -40,54 +45,73 @@ def cmd(in_dir, gt_dir, factor, pipelines, variants, mode, json_out, report_dir,
     import math
     import os
 
-    from fgcli import evaluate as ev
     from fgcli import pipeline as pl
+    from fgcli.batch import EvalTask, eval_source, execute_eval
+    from fgcli.commands._generate import check_executor
     from fgcli.errors import UsageError
-    from fgcli.io.options import open_input
 
-    if gt_dir and factor:
-        raise UsageError("use either --gt or --factor")
-    if not gt_dir and not factor:
-        if os.path.isdir(os.path.join(in_dir, "input")) and os.path.isdir(os.path.join(in_dir, "gt")):
-            in_dir, gt_dir = os.path.join(in_dir, "input"), os.path.join(in_dir, "gt")
-        else:
-            factor = 2
-    if gt_dir:
-        src = ev.GTSource(open_input(in_dir, **in_kw), open_input(gt_dir, **in_kw))
-    else:
-        src = ev.HeldOutSource(open_input(in_dir, **in_kw), factor)
+    check_executor(executor, scheduler, workers)
+    if len(in_dirs) > 1 and gt_dir:
+        raise UsageError("--gt takes one input sequence; for several, give folders with "
+                         "input/ and gt/ each, or use --factor")
     names = [n.strip() for n in pipelines.split(",") if n.strip()] if pipelines else []
     if names == ["all"]:
         names = list(pl.available())
-    pipes = []
+    chosen = []
     for n in names:
         p = pl.load(n)
         if mode in p.modes:
-            pipes.append(p)
+            chosen.append(n)
         elif pipelines != "all":
             raise UsageError(f"pipeline '{n}' does not support mode '{mode}'")
     for v in variants:
-        pipes.append(pl.load(v))
-    result = ev.evaluate(src, pipes, mode, progress=not no_progress, device=device,
-                         hdr_flip=not no_hdr_flip, keep_worst=report_dir is not None)
-    worst = result.pop("_worst")
-    click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
-               f"{src.inputs[0]}..{src.inputs[-1]}")
-    click.echo(f"# color: {result['display']}")
-    click.echo(ev.markdown_table(result))
-    if json_out:
-        def clean(o):
-            if isinstance(o, float) and (math.isnan(o) or math.isinf(o)):
-                return None
-            if isinstance(o, dict):
-                return {k: clean(v) for k, v in o.items()}
-            if isinstance(o, list):
-                return [clean(v) for v in o]
-            return o
-        with open(json_out, "w") as fh:
-            json.dump(clean(result), fh, indent=1)
-    if report_dir:
-        from fgcli.report import write_report
+        pl.load(v)
+        chosen.append(v)
+    labels = [os.path.basename(os.path.normpath(d)) for d in in_dirs]
+    if len(set(labels)) < len(labels):
+        labels = list(in_dirs)
+    tasks = [EvalTask(in_dir=d, gt_dir=gt_dir, factor=factor, pipelines=tuple(chosen), mode=mode,
+                      in_kw=in_kw, device=device, hdr_flip=not no_hdr_flip,
+                      keep_worst=report_dir is not None, name=lab)
+             for d, lab in zip(in_dirs, labels)]
+    srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw) for t in tasks]  # fail early
+    if executor == "dask":
+        from fgcli.evaluate import make_tasks
+        from fgcli.executor import eval_dask
 
-        files = write_report(result, worst, report_dir)
-        click.echo(f"# report: {', '.join(files)}", err=True)
+        frames = sum(len(make_tasks(s, mode)) for s in srcs) * len(chosen)
+        results = eval_dask(tasks, scheduler, workers, progress=not no_progress,
+                            total_frames=frames)
+    else:
+        results = [execute_eval(t, progress=not no_progress) for t in tasks]
+
+    def clean(o):
+        if isinstance(o, float) and (math.isnan(o) or math.isinf(o)):
+            return None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, list):
+            return [clean(v) for v in o]
+        return o
+
+    from fgcli import evaluate as ev
+
+    for t, src, result in zip(tasks, srcs, results):
+        worst = result.pop("_worst")
+        if len(tasks) > 1:
+            click.echo(f"## {t.label()}")
+        click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
+                   f"{src.inputs[0]}..{src.inputs[-1]}")
+        click.echo(f"# color: {result['display']}")
+        click.echo(ev.markdown_table(result))
+        if report_dir:
+            from fgcli.report import write_report
+
+            where = report_dir if len(tasks) == 1 else os.path.join(report_dir, t.label())
+            files = write_report(result, worst, where)
+            click.echo(f"# report: {', '.join(files)}", err=True)
+    if json_out:
+        data = results[0] if len(results) == 1 else {
+            "sequences": {t.label(): r for t, r in zip(tasks, results)}}
+        with open(json_out, "w") as fh:
+            json.dump(clean(data), fh, indent=1)
