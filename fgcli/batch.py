@@ -30,6 +30,8 @@ class RunTask:
     command: str = ""
     chunk: tuple | None = None  # (K, N)
     name: str = ""  # the sequence's name in messages
+    scene_cuts: str = "auto"
+    cut_threshold: float | None = None
 
     def label(self) -> str:
         c = f" chunk {self.chunk[0]}/{self.chunk[1]}" if self.chunk else ""
@@ -115,7 +117,8 @@ def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
     summary = run_sequence(reader, out, p, task.mode, list(task.times), emit=task.emit,
                            device=task.device, progress=progress, count=task.count,
                            out_layout=out.layout, half=out.half, compression=out.compression,
-                           command=task.command, chunk=task.chunk, on_frame=on_frame)
+                           command=task.command, chunk=task.chunk, on_frame=on_frame,
+                           scene_cuts=task.scene_cuts, cut_threshold=task.cut_threshold)
     summary["task"] = task.label()
     return summary
 
@@ -158,6 +161,8 @@ class EvalTask:
     hdr_flip: bool = True
     keep_worst: bool = False
     name: str = ""
+    scene_cuts: str = "auto"
+    cut_threshold: float | None = None
 
     def label(self) -> str:
         return self.name or self.in_dir
@@ -190,6 +195,7 @@ def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:
     pipes = [pl.load(n) for n in task.pipelines]
     res = ev.evaluate(src, pipes, task.mode, progress=progress,
                       device=task.device, hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
-                      on_frame=on_frame)
+                      on_frame=on_frame, scene_cuts=task.scene_cuts,
+                      cut_threshold=task.cut_threshold)
     res["sequence"] = task.label()
     return res

@@ -253,14 +253,15 @@ def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
 
 
 def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str = "cpu",
-             hdr_flip: bool = True, keep_worst: bool = False, on_frame=None) -> dict:
+             hdr_flip: bool = True, keep_worst: bool = False, on_frame=None,
+             scene_cuts: str = "auto", cut_threshold: float | None = None) -> dict:
     """Run every pipeline on every task; returns {"pipelines": {label: {...}}, ...}.
     on_frame: called with 1 per scored (frame, pipeline) (an executor's progress)."""
     import torch
     from tqdm import tqdm
 
     from fgcli.pipeline import Timings, frame_facts, run_stages
-    from fgcli.runner import check_device, device_sync, make_ctx
+    from fgcli.runner import RunState, check_device, device_sync, make_ctx
 
     check_device(device)
     sync = device_sync(device)
@@ -276,7 +277,10 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     if not built:
         raise UsageError(f"none of the pipelines supports mode '{mode}'")
     masks_cache: dict = {}
+    states = {id(b[1]): RunState() for b in built}  # recurrent state per pipeline
+    holes: dict = {}  # pipeline -> [unfilled pixels, pixels] (gffe_hole_fill)
     worst: dict = {}
+    cuts: list = []
     bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
                disable=None if progress else True, leave=False)
     with torch.inference_mode():
@@ -289,14 +293,24 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
             dis, mov = masks_cache[task.target]
             g0 = f0.to(device) if f0 is not None else None
             g1 = f1.to(device)
-            facts = frame_facts(make_ctx(g0, g1, task.alpha, mode))  # once for all pipelines
+            fctx = make_ctx(g0, g1, task.alpha, mode)
+            fctx["scene_cuts"] = scene_cuts
+            if cut_threshold is not None:
+                fctx["scene_cut_threshold"] = cut_threshold
+            facts = frame_facts(fctx)  # once for all pipelines
+            if "cut_check" in facts:
+                cuts.append({"frame": task.target, **facts["cut_check"]})
             for p, stages, tm, sc in built:
                 ctx = make_ctx(g0, g1, task.alpha, mode)
                 ctx["prev_time"] = task.prev_time
-                ctx["state"] = None
+                ctx["state"] = states[id(stages)]
                 ctx = run_stages(stages, ctx, tm, label=str(task.target), sync=sync,
                                  measure_skips=True, facts=dict(facts))
                 score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip)
+                if ctx.get("holes") is not None:
+                    hc = holes.setdefault(p.label, [0, 0])
+                    hc[0] += int(ctx["holes"])
+                    hc[1] += int(ctx["color"].shape[-1] * ctx["color"].shape[-2])
                 if keep_worst:
                     w = worst.get(p.label)
                     if w is None or sc.psnr[-1] < w["psnr"]:
@@ -317,9 +331,13 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                   "per_frame": sc.per_frame})
         dis_frac = [float(m[0].float().mean()) for m, _ in masks_cache.values() if m is not None]
         r["disoccluded_fraction"] = sum(dis_frac) / len(dis_frac) if dis_frac else None
+        if p.label in holes:
+            r["hole_fill_fraction"] = holes[p.label][0] / max(1, holes[p.label][1])
         res[p.label] = r
     return {"mode": mode, "frames": len(tasks), "inputs": src.inputs,
             "targets": [t.target for t in tasks], "pipelines": res,
+            "scene_cuts": {"mode": scene_cuts, "candidates": cuts,
+                           "cuts": [c["frame"] for c in cuts if c["cut"]]},
             "display": "sRGB OETF of clip(linear, 0, 1); HDR-FLIP on linear color",
             "_worst": worst}
 

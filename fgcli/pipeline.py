@@ -116,7 +116,47 @@ class Pipeline:
                 continue
             cls = get_stage(st.use, f"{self.path}:{st.line}")
             out.append((st, cls(where=f"{self.path}:{st.line}", **st.opts)))
+        check_flow(self, mode, out)
         return out
+
+
+# Context keys the runner puts in every frame's context (see the module docstring); a
+# stage's declared inputs must come from these or from an earlier stage's outputs.
+FRAME_KEYS = frozenset({"color0", "depth0", "mv0", "camera0", "color1", "depth1", "mv1",
+                        "camera1", "alpha", "mode", "width", "height", "prev_time", "state",
+                        "facts", "number0", "number1"})
+
+
+def check_flow(p: "Pipeline", mode: str, built) -> None:
+    """Data flow of one mode: every enabled stage's declared inputs are produced by the
+    frame (FRAME_KEYS) or by an earlier stage, and the stages produce color, depth and mv.
+    Errors name the file, the stage's line, the stage and the input."""
+    have = set(FRAME_KEYS)
+    for spec, stage in built:
+        for k in stage.inputs:
+            if k not in have:
+                raise UsageError(f"{p.path}:{spec.line}: stage '{spec.id}' ({spec.use}) needs "
+                                 f"input '{k}', which neither the frame nor an earlier stage "
+                                 f"produces in mode '{mode}'")
+        have.update(stage.outputs)
+    missing = [k for k in FINAL_OUTPUTS if k not in have]
+    if missing:
+        raise UsageError(f"{p.path}: pipeline '{p.name}' produces no {', '.join(missing)} "
+                         f"in mode '{mode}'")
+
+
+def flow(p: "Pipeline", mode: str) -> list[dict]:
+    """Per enabled stage of a mode: its inputs (with where each comes from: 'frame' or the
+    producing stage's id) and outputs."""
+    src = {k: "frame" for k in FRAME_KEYS}
+    rows = []
+    for spec, stage in p.build(mode):
+        ins = [(k, src[k]) for k in stage.inputs]
+        ins += [(k, src[k]) for k in stage.optional_inputs if k in src]
+        rows.append({"id": spec.id, "inputs": ins, "outputs": list(stage.outputs)})
+        for k in stage.outputs:
+            src[k] = spec.id
+    return rows
 
 
 def _stage_lines(text: str) -> list[int]:
@@ -214,6 +254,7 @@ class Timings:
     io_write: list = field(default_factory=list)
     skipped: list = field(default_factory=list)  # (frame label, stage id, reason)
     skip_cost: dict = field(default_factory=dict)  # stage id -> ms of one measured run
+    cuts: list = field(default_factory=list)  # scene-cut candidates: {"frame", "score", "cut", ...}
 
     def add(self, sid: str, ms: float) -> None:
         self.stages.setdefault(sid, []).append(ms)
@@ -251,11 +292,20 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
     facts = {"any_motion": any_motion,
              "has_history": ctx.get("color0") is not None,
              "history_motion": bool(mv0 is not None and torch.count_nonzero(mv0).item() > 0)}
+    detect_cuts = detect_cuts and ctx.get("scene_cuts", "auto") != "off"
     if detect_cuts and ctx.get("color0") is not None:
-        from fgcli.ops import scene_change_score
+        from fgcli.ops import confirm_cut
 
-        facts["scene_change"] = scene_change_score(ctx["color0"], ctx["color1"])
-        facts["scene_cut"] = facts["scene_change"] > SCENE_CUT_THRESHOLD
+        # FSR 3's histogram rule finds candidates; a candidate is a cut only when neither a
+        # repeat, the frame's own vectors nor a cheap optical flow explain the new frame
+        chk = confirm_cut(ctx["color0"], ctx["color1"], ctx.get("mv1"),
+                          float(ctx.get("scene_cut_threshold", SCENE_CUT_THRESHOLD)))
+        facts["scene_change"] = chk["score"]
+        facts["scene_cut"] = chk["cut"]
+        if chk["candidate"]:
+            facts["cut_check"] = {"score": round(chk["score"], 4), "cut": chk["cut"],
+                                  **{k: (None if v is None else round(v, 4))
+                                     for k, v in chk["explain"].items()}}
     else:
         facts["scene_cut"] = False
     cam0, cam1 = ctx.get("camera0"), ctx.get("camera1")
@@ -291,10 +341,15 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
     elif timings is not None:  # computed once, shared by several pipelines: still charged
         timings.add("facts", shared_ms)
     ctx["facts"] = facts
+    if timings is not None and "cut_check" in facts:
+        frame = int(label) if label.lstrip("-").isdigit() else label
+        timings.cuts.append({"frame": frame, **facts["cut_check"]})
     if facts["scene_cut"]:
         # a camera cut between the two rendered frames: never smear two shots together;
         # every pipeline repeats the nearest frame of the right shot
         ctx.update(cut_outputs(ctx))
+        if ctx.get("state") is not None:  # recurrent state never crosses a cut
+            ctx["state"].store.clear()
         if timings is not None:
             for spec, _ in stages:
                 timings.skipped.append((label, spec.id, f"scene cut (score "
@@ -357,4 +412,5 @@ def describe(p: Pipeline) -> dict:
         opts = {o.name: st.opts.get(o.name, o.default) for o in cls.options}
         out["stages"].append({"id": st.id, "use": st.use, "modes": list(st.modes) or list(p.modes),
                               "enabled": st.enabled, "options": opts})
+    out["flow"] = {m: flow(p, m) for m in p.modes}
     return out

@@ -96,7 +96,8 @@ def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
     return {"color0": None if f0 is None else f0.color, "depth0": None if f0 is None else f0.depth,
             "mv0": None if f0 is None else f0.mv, "camera0": None if f0 is None else f0.camera,
             "color1": f1.color, "depth1": f1.depth, "mv1": f1.mv, "camera1": f1.camera,
-            "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height}
+            "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height,
+            "number0": None if f0 is None else f0.number, "number1": f1.number}
 
 
 def generated_frame(ctx: dict, number: int, time_: float, like: Frame) -> Frame:
@@ -251,7 +252,8 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                  emit: str = "generated", device: str = "cpu", progress: bool = True,
                  count: int = 1, out_layout: str = "fgen", half: bool = True,
                  compression: str = "zip", command: str = "",
-                 chunk: tuple[int, int] | None = None, on_frame=None) -> dict:
+                 chunk: tuple[int, int] | None = None, on_frame=None,
+                 scene_cuts: str = "auto", cut_threshold: float | None = None) -> dict:
     """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
     alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
     OUT/fgen-run.json, or OUT/fgen-run.chunk-K-of-N.json for a chunk).
@@ -261,7 +263,9 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     boundary, and the history of recurrent stages, replayed but not written) are read as
     well, so the union of the N parts is byte-identical to one run.
     on_frame: called with the number of output frames just finished (progress of an
-    executor that drives several runs)."""
+    executor that drives several runs).
+    scene_cuts: "auto" (detect camera cuts, repeat the nearest frame across one) or "off";
+    cut_threshold: the histogram score that makes a cut candidate (default FSR 3's)."""
     import torch
 
     device = check_device(device)
@@ -279,6 +283,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
                     "fgen:command_line": command, "fgen:pipeline_json": json.dumps(pinfo)}
     written, skipped_existing, replayed = 0, 0, 0
+    windows: dict = {}  # rendered frame -> adaptive rendering window (gffe_window)
     bar = _progress(len(mine) + len(copies), f"{pipeline.label} {mode}", progress)
 
     def done(k: int = 1) -> None:
@@ -322,10 +327,15 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                 ctx = make_ctx(f0, f1, float(t), mode)
                 ctx["state"] = state
                 ctx["prev_time"] = float(prev_t)
+                ctx["scene_cuts"] = scene_cuts
+                if cut_threshold is not None:
+                    ctx["scene_cut_threshold"] = cut_threshold
                 ctx = run_stages(stages, ctx, timings if ji in to_write else None,
                                  label=str(on), sync=sync)
                 if ji not in to_write:
                     continue
+                if ctx.get("render_window") is not None:
+                    windows[str(b)] = ctx["render_window"]
                 base, span = (b, step) if mode == "extrap" else (a, b - a)
                 gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1)
                 src = f"{a},{b}" if a is not None else f"{b}"
@@ -344,9 +354,12 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                "chunk": None if chunk is None else f"{chunk[0]}/{chunk[1]}",
                "outputs": [os.path.basename(out.path_for(on)) for on in plan["outputs"]],
                "written": written, "skipped_existing": skipped_existing,
-               "replayed_for_history": replayed, "stale_temp_removed": len(out.stale_removed),
+               "replayed_for_history": replayed,
+               **({"render_windows": windows} if windows else {}), "stale_temp_removed": len(out.stale_removed),
                "timings": timings.summary(),
                "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
+               "scene_cuts": {"mode": scene_cuts, "candidates": timings.cuts,
+                              "cuts": [c["frame"] for c in timings.cuts if c["cut"]]},
                "command": command, "device": device}
     name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
     atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))

@@ -73,3 +73,62 @@ def test_reader_warns_once_about_device_depth(tmp_path):
     assert r.exit_code == 0, r.output
     assert r.output.count("looks like normalized device depth") == 1
     assert re.search(r"d\.000(\d)\.exr: frame \1: channel depth", r.output)
+
+
+# ------------------------------------------- cuts confirmed by motion (issue: false cuts)
+
+def _write_seq(folder, frames, gains=None):
+    os.makedirs(folder, exist_ok=True)
+    for i, f in enumerate(frames):
+        g = 1.0 if gains is None else gains[i]
+        write_frame(os.path.join(folder, f"s.{i:04d}.exr"),
+                    Frame(number=i, color=f.color * g, depth=f.depth, mv=f.mv, camera=f.camera))
+
+
+def _run_cuts(tmp_path, folder, *extra):
+    out = tmp_path / ("o-" + os.path.basename(folder))
+    r = CliRunner().invoke(cli, ["interpolate", str(folder), str(out), "--no-progress", *extra])
+    assert r.exit_code == 0, r.output
+    import json
+
+    return json.loads((out / "fgen-run.json").read_text())["scene_cuts"], out, r.output
+
+
+def test_fast_large_motion_is_not_a_cut(tmp_path):
+    """A box crossing ~1/3.5 of the frame per input frame: the histograms flag every pair
+    (candidates), the motion check clears them all; with the check off (threshold above
+    any score) nothing is flagged at all."""
+    from fgcli.synth import load_scene, render_sequence
+
+    sc = load_scene(os.path.join(ROOT, "tests", "scenes", "fastcross.toml"))
+    render_sequence(sc, tmp_path / "fast", progress=False)
+    cuts, _, _ = _run_cuts(tmp_path, tmp_path / "fast")
+    assert cuts["cuts"] == []
+    assert len(cuts["candidates"]) >= 2  # the histogram rule alone would have cut here
+    assert all(c["explained"] >= 0.3 for c in cuts["candidates"])
+
+
+def test_exposure_ramp_is_not_a_cut(tmp_path):
+    frames = _first_frames("orbit", 6)
+    gains = [1.6 ** i for i in range(6)]  # +0.7 stops per frame: histogram candidates
+    _write_seq(tmp_path / "ramp", frames, gains)
+    cuts, _, _ = _run_cuts(tmp_path, tmp_path / "ramp")
+    assert cuts["cuts"] == [] and len(cuts["candidates"]) >= 3  # until the highlights clip
+
+
+def test_spliced_shots_are_one_cut_and_nothing_is_blended(tmp_path):
+    a = _first_frames("orbit", 4)
+    b = _first_frames("throw", 4)
+    _write_seq(tmp_path / "splice", a + b)
+    cuts, out, log = _run_cuts(tmp_path, tmp_path / "splice")
+    assert cuts["cuts"] == [7]  # output frame 7 lies between input 3 (orbit) and 4 (throw)
+    assert "scene cuts" in log and "7" in log
+    from fgcli.io.frames import read_frame
+
+    got = read_frame(str(out / "s.0007.exr"), 7)
+    # the nearest frame of one shot, exactly (half-float output of a half-float input)
+    assert torch.equal(got.color, a[3].color.half().float()) or torch.equal(
+        got.color, b[0].color.half().float())
+    off, _, _ = _run_cuts(tmp_path, tmp_path / "splice", "--scene-cuts", "off",
+                          "--overwrite")
+    assert off["cuts"] == [] and off["candidates"] == []

@@ -43,8 +43,21 @@ def common(f):
                      help="Farm chunk: write only part K of N contiguous parts of the output "
                           "frames (reads the inputs they need); N runs = one run.")(f)
     f = executor_options(f)
+    f = scene_cut_options(f)
     f = output_options(f)
     f = input_options(f)
+    return f
+
+
+def scene_cut_options(f):
+    f = click.option("--scene-cuts", type=click.Choice(["auto", "off"]), default="auto",
+                     show_default=True,
+                     help="auto: detect camera cuts (histogram candidates confirmed when no "
+                          "motion explains the new frame) and repeat the nearest frame there.")(f)
+    f = click.option("--scene-cut-threshold", "cut_threshold", type=float, default=None,
+                     metavar="KL",
+                     help="Histogram score (symmetric KL) that makes a cut candidate "
+                          "(default 0.45, FSR 3's).")(f)
     return f
 
 
@@ -77,7 +90,8 @@ def check_executor(executor, scheduler, workers, chunk=None):
 
 
 def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,
-        count, in_kw, out_kw, chunk=None, executor="local", scheduler=None, workers=None):
+        count, in_kw, out_kw, chunk=None, executor="local", scheduler=None, workers=None,
+        scene_cuts="auto", cut_threshold=None):
     import json
 
     from fgcli import pipeline as pl
@@ -94,7 +108,8 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
     tasks = [RunTask(mode=mode, folder=folder, pattern=pattern, out_dir=od, pipeline=pipeline,
                      sets=tuple(sets), device=device, times=tuple(times), emit=emit, count=count,
                      in_kw={k: v for k, v in in_kw.items() if k != "pattern"}, out_kw=out_kw,
-                     command=command, chunk=ch, name=name)
+                     command=command, chunk=ch, name=name, scene_cuts=scene_cuts,
+                     cut_threshold=cut_threshold)
              for name, folder, pattern, od in seqs]
     if executor == "dask":
         from fgcli.executor import run_dask
@@ -116,6 +131,11 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
         if t["skipped"]:
             click.echo(f"skipped {t['skipped']} stage runs where not needed "
                        f"(saving ~{t['ms_saved_per_frame']:.1f} ms/frame); see fgen-run.json",
+                       err=True)
+        sc = summary.get("scene_cuts") or {}
+        if sc.get("cuts"):
+            click.echo(f"scene cuts (nearest frame repeated, no blending) at output frames "
+                       f"{', '.join(str(c) for c in sc['cuts'])}; scores in fgen-run.json",
                        err=True)
         if summary.get("stale_temp_removed"):
             click.echo(f"removed {summary['stale_temp_removed']} temporary files left by a "

@@ -1,6 +1,6 @@
 import click
 
-from fgcli.commands._generate import executor_options
+from fgcli.commands._generate import executor_options, scene_cut_options
 from fgcli.io.options import input_options
 
 
@@ -24,9 +24,11 @@ from fgcli.io.options import input_options
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
 @click.option("--no-progress", is_flag=True)
 @executor_options
+@scene_cut_options
 @input_options
 def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
-        no_hdr_flip, no_progress, executor, scheduler, workers, **in_kw):
+        no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
+        **in_kw):
     """Score pipelines against ground truth (DESIGN.md section 4).
 
     \b
@@ -72,7 +74,8 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
         labels = list(in_dirs)
     tasks = [EvalTask(in_dir=d, gt_dir=gt_dir, factor=factor, pipelines=tuple(chosen), mode=mode,
                       in_kw=in_kw, device=device, hdr_flip=not no_hdr_flip,
-                      keep_worst=report_dir is not None, name=lab)
+                      keep_worst=report_dir is not None, name=lab, scene_cuts=scene_cuts,
+                      cut_threshold=cut_threshold)
              for d, lab in zip(in_dirs, labels)]
     srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw) for t in tasks]  # fail early
     if executor == "dask":
@@ -103,6 +106,9 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
         click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
                    f"{src.inputs[0]}..{src.inputs[-1]}")
         click.echo(f"# color: {result['display']}")
+        if result["scene_cuts"]["cuts"]:
+            click.echo(f"# scene cuts (nearest frame repeated) at frames "
+                       f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")
         click.echo(ev.markdown_table(result))
         if report_dir:
             from fgcli.report import write_report

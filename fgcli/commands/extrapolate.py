@@ -13,7 +13,7 @@ from fgcli.commands._generate import common, run, split_kwargs
 @click.option("--emit", type=click.Choice(["generated", "all"]), default="generated", show_default=True)
 @common
 def cmd(in_dirs, alpha, count, emit, pipeline, sets, device, no_progress, json_out, chunk,
-        executor, scheduler, workers, **kw):
+        executor, scheduler, workers, scene_cuts, cut_threshold, **kw):
     """Generate frames past each rendered frame of IN_DIR, from that frame and its history only.
 
     Several input folders (or a --pattern matching several sequences) write into
@@ -30,4 +30,4 @@ def cmd(in_dirs, alpha, count, emit, pipeline, sets, device, no_progress, json_o
     in_kw, out_kw = split_kwargs(kw)
     run("extrap", list(in_dirs[:-1]), in_dirs[-1], pipeline, sets, device, no_progress, json_out,
         parse_alphas(alpha, None, "extrap"), emit, count, in_kw, out_kw, chunk, executor,
-        scheduler, workers)
+        scheduler, workers, scene_cuts, cut_threshold)

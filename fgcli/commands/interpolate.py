@@ -12,7 +12,7 @@ from fgcli.commands._generate import common, run, split_kwargs
               help="'all' writes the merged higher-rate sequence with rendered frames copied through.")
 @common
 def cmd(in_dirs, factor, alpha, emit, pipeline, sets, device, no_progress, json_out, chunk,
-        executor, scheduler, workers, **kw):
+        executor, scheduler, workers, scene_cuts, cut_threshold, **kw):
     """Generate frames between rendered frames of IN_DIR into OUT_DIR.
 
     Several input folders (or a --pattern matching several sequences) write into
@@ -29,4 +29,4 @@ def cmd(in_dirs, factor, alpha, emit, pipeline, sets, device, no_progress, json_
     in_kw, out_kw = split_kwargs(kw)
     run("interp", list(in_dirs[:-1]), in_dirs[-1], pipeline, sets, device, no_progress, json_out,
         parse_alphas(alpha, factor, "interp"), emit, 1, in_kw, out_kw, chunk, executor, scheduler,
-        workers)
+        workers, scene_cuts, cut_threshold)

@@ -33,7 +33,7 @@ from fgcli.ops.color import luminance, mulaw, srgb_eotf, srgb_oetf, to_display
 from fgcli.ops.fill import extrap_hole_fill, fill_extrap_holes, gap_fill
 from fgcli.ops.metrics import (flip_hdr, flip_ldr, masked_mean, psnr, ssim, ssim_map)
 from fgcli.ops.motion import chain_mv, disocclusion_mask
-from fgcli.ops.scene import is_scene_change, scene_change_score
+from fgcli.ops.scene import confirm_cut, is_scene_change, motion_explains, scene_change_score
 from fgcli.ops.splat import (SplatResult, dilate_nearest_depth, generated_mv,
                              motion_coefficients, splat_motion)
 from fgcli.ops.warp import (backward_warp, mv_warp_extrap, mv_warp_interp, sample_nearest)
@@ -44,6 +44,7 @@ __all__ = [
     "brightness_difference", "chain_mv", "dilate_nearest_depth", "disocclusion_mask",
     "extrap_hole_fill", "fill_extrap_holes", "flip_hdr", "flip_ldr", "gap_fill",
     "generated_mv", "luminance", "masked_mean", "is_scene_change", "scene_change_score",
+    "confirm_cut", "motion_explains",
     "motion_coefficients", "mulaw",
     "mv_warp_extrap", "mv_warp_interp", "psnr", "repeat_nearest", "sample_nearest",
     "sanitize_depth", "sanitize_mv", "sanitize_values", "splat_motion", "srgb_eotf",
