@@ -97,7 +97,8 @@ def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
             "mv0": None if f0 is None else f0.mv, "camera0": None if f0 is None else f0.camera,
             "color1": f1.color, "depth1": f1.depth, "mv1": f1.mv, "camera1": f1.camera,
             "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height,
-            "number0": None if f0 is None else f0.number, "number1": f1.number}
+            "number0": None if f0 is None else getattr(f0, "number", None),
+            "number1": getattr(f1, "number", None)}
 
 
 def generated_frame(ctx: dict, number: int, time_: float, like: Frame) -> Frame:
