@@ -39,7 +39,24 @@ def make_frame(h, w, dk, mk, ck, seed, n=0):
           "huge": (r(2, h, w) - 0.5) * 1e7, "offscreen": torch.full((2, h, w), 3.0 * (h + w)),
           "converge": torch.stack([w / 2 - xx, h / 2 - yy]),
           "nan": torch.full((2, h, w), float("nan"))}[mk]
-    return Frame(number=n, color=color, depth=depth, mv=mv)
+    return Frame(number=n, color=color, depth=depth, mv=mv, camera=make_camera(seed))
+
+
+def make_camera(seed):
+    """Every frame carries a camera (pipelines such as gffe-extrap require one): a 50 degree
+    perspective camera near the origin looking down -Z, moved a little per seed."""
+    import numpy as np
+
+    from fgcli.frame import Camera
+
+    g = np.random.default_rng(seed)
+    w2c = np.eye(4)
+    w2c[:3, 3] = -(g.random(3) - 0.5) * 0.2
+    f, near, far = 1.0 / math.tan(math.radians(25.0)), 0.05, 1000.0
+    proj = np.array([[f, 0, 0, 0], [0, f, 0, 0],
+                     [0, 0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+                     [0, 0, -1, 0]])
+    return Camera(w2c, proj)
 
 
 def run(name, mode, f0, f1, alpha):

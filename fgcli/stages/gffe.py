@@ -1,0 +1,348 @@
+"""GFFE geometry-aware extrapolation (GAE) stages (pipelines/gffe-extrap.toml): history
+tracking, camera extrapolation + adaptive window, position estimation, warp, background
+collection and projection, hole fill. Thin wrappers over fgcli.ops.gffe.
+
+Recurrent state (trajectories, background layers, their camera) lives in the runner's
+RunState (ctx["state"].store["gffe"]), updated once per rendered frame (the first job of a
+rendered frame; --count N makes N jobs per frame) and cleared by the runner at a scene cut.
+Without a RunState (a single call), the state lives for that call only.
+"""
+from __future__ import annotations
+
+from fgcli.errors import InputError
+from fgcli.stages.base import Option, Stage, register
+
+KEY = "gffe"
+
+
+def _store(ctx) -> dict:
+    st = ctx.get("state")
+    if st is None:
+        return ctx.setdefault("_gffe_local", {})
+    return st.store.setdefault(KEY, {})
+
+
+def _need_camera(ctx, stage: str):
+    if ctx.get("camera1") is None:
+        raise InputError(f"gffe-extrap ({stage}) needs per-frame cameras (world_to_camera + "
+                         "projection: EXR worldToCamera/worldToNDC, fgen:* header attributes "
+                         "or cameras.json); this input has none. Use a motion-vector "
+                         "pipeline (mob-fgsr, mv-warp) for footage without cameras.")
+
+
+def _frame_id(ctx):
+    return ctx.get("number1")
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
+def _static_frame(ctx, facts) -> bool:
+    """Static camera and no motion vectors: every pixel passes the static test."""
+    return (not facts.get("camera_moved", False)) and not facts.get("any_motion", True)
+
+
+@register
+class GffeHistory(Stage):
+    name = "gffe_history"
+    help = ("GFFE Algorithm 1: per-pixel trajectory of k world positions from unprojected "
+            "depth and cameras; the static test compares the camera-only reprojection with "
+            "the MV reprojection. Runs once per rendered frame; state in the RunState.")
+    inputs = ("depth1", "mv1", "alpha")
+    optional_inputs = ("camera1", "camera0", "depth0", "state", "number1")
+    outputs = ("traj", "dynamic")
+    options = (
+        Option("k", "int", 3, "trajectory length (2 = Eq. 1; 3 also feeds motion=quadratic)",
+               range=(2, 4)),
+        Option("threshold", "float", 0.5, "static test: pixels between the camera-only and "
+               "the MV reprojection above which a pixel is dynamic", range=(0.0, 1e6)),
+        Option("first_frame", "choice", "mv", "empty history (first frame, after a cut): "
+               "static (the paper) or mv (screen-space motion from the frame's vectors, fgen)",
+               choices=("mv", "static")),
+    )
+    history = None  # the trajectories carry over every earlier rendered frame
+
+    def needed(self, ctx, facts):
+        _need_camera(ctx, self.name)
+        s = _store(ctx)
+        if s.get("hist_frame") is not None and s.get("hist_frame") == _frame_id(ctx):
+            return False, "tracked once per rendered frame"
+        if _static_frame(ctx, facts):
+            return False, "static camera and no motion: every pixel is static"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        s = _store(ctx)
+        fid = _frame_id(ctx)
+        if s.get("hist_frame") is not None and s.get("hist_frame") == fid:
+            return {"traj": s.get("traj"), "dynamic": s["dynamic"]}
+        h, w = ctx["depth1"].shape[-2:]
+        dyn = torch.zeros(1, h, w, dtype=torch.bool, device=ctx["depth1"].device)
+        s.update(hist_frame=fid, traj=None, dynamic=dyn, hist_camera=ctx["camera1"])
+        return {"traj": None, "dynamic": dyn}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import track_history
+
+        s = _store(ctx)
+        prev = s.get("traj")
+        d1 = ctx["depth1"]
+        cam0 = ctx.get("camera0")
+        if prev is not None and tuple(prev.shape[-2:]) != tuple(d1.shape[-2:]):
+            prev = None
+        if ctx.get("depth0") is None and prev is None:
+            cam0 = None
+        traj, dyn = track_history(d1, ctx["mv1"], ctx["camera1"], cam0, ctx.get("depth0"),
+                                  prev, self.k, self.threshold, self.first_frame)
+        s.update(hist_frame=_frame_id(ctx), traj=traj, dynamic=dyn, hist_camera=ctx["camera1"])
+        return {"traj": traj, "dynamic": dyn}
+
+
+@register
+class GffeCamera(Stage):
+    name = "gffe_camera"
+    help = "GFFE Eq. 2: extrapolated camera C + alpha (C - C_prev) per pose component."
+    inputs = ("alpha",)
+    optional_inputs = ("camera0", "camera1")
+    outputs = ("camera_x",)
+    options = ()
+
+    def needed(self, ctx, facts):
+        _need_camera(ctx, self.name)
+        if ctx.get("camera0") is None or not facts.get("camera_moved", False):
+            return False, "static camera (or no previous camera): extrapolated = current"
+        return True, ""
+
+    def skip(self, ctx):
+        from fgcli.ops.gffe import extrapolate_camera
+
+        return {"camera_x": extrapolate_camera(None, ctx["camera1"], ctx["alpha"])}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import extrapolate_camera
+
+        return {"camera_x": extrapolate_camera(ctx["camera0"], ctx["camera1"], ctx["alpha"])}
+
+
+@register
+class GffeWindow(Stage):
+    name = "gffe_window"
+    help = ("GFFE adaptive rendering window (Sec. 4.3, appendix C, Eq. 5): the window a "
+            "renderer should use so the extrapolated view is covered; recorded per rendered "
+            "frame in fgen-run.json (render_windows).")
+    inputs = ("camera_x", "depth1")
+    optional_inputs = ("camera1",)
+    outputs = ("render_window",)
+    options = (
+        Option("plane_depth", "float", 0.0, "virtual plane distance (scene units); 0 = the "
+               "median finite depth of the frame", range=(0.0, 1e9)),
+        Option("limit", "float", 4.0, "largest window half-extent, in nominal windows",
+               range=(1.0, 100.0)),
+    )
+
+    def run(self, ctx):
+        import math
+
+        import torch
+
+        from fgcli.ops.gffe import render_window
+
+        d = self.plane_depth
+        if d <= 0:
+            dep = ctx["depth1"]
+            fin = dep[torch.isfinite(dep) & (dep > 0)]
+            d = float(fin.median()) if fin.numel() else 10.0
+            if not (d > 0 and math.isfinite(d)):
+                d = 10.0
+        try:
+            win = render_window(ctx["camera1"], ctx["camera_x"], d, self.limit)
+        except (ValueError, ArithmeticError, __import__("numpy").linalg.LinAlgError):
+            win = (-1.0, -1.0, 1.0, 1.0)
+        return {"render_window": [round(x, 6) for x in win]}
+
+
+@register
+class GffePosition(Stage):
+    name = "gffe_position"
+    help = ("GFFE Eq. 1: next world position NP = alpha (P0 - P1) + P0 (linear in world "
+            "space); motion=quadratic: the higher-order ablation of the paper.")
+    inputs = ("traj", "alpha")
+    optional_inputs = ("dynamic",)
+    outputs = ("positions",)
+    options = (Option("motion", "choice", "linear", "world-space motion model",
+                      choices=("linear", "quadratic")),)
+
+    def needed(self, ctx, facts):
+        if ctx.get("traj") is None:
+            return False, "every pixel static: positions are the unprojected depth"
+        t = ctx["traj"]
+        if not bool(ctx["dynamic"].any()) and torch_equal(t[0], t[1]):
+            return False, "no dynamic pixels: positions are the unprojected depth"
+        return True, ""
+
+    def skip(self, ctx):
+        t = ctx.get("traj")
+        return {"positions": None if t is None else t[0]}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import estimate_positions
+
+        return {"positions": estimate_positions(ctx["traj"], ctx["alpha"], self.motion)}
+
+
+@register
+class GffeWarp(Stage):
+    name = "gffe_warp"
+    help = ("GFFE warp: project the estimated positions with the extrapolated camera, "
+            "nearest depth wins (packed-key splat shared with mob-fgsr); color, depth and MVs "
+            "of the extrapolated frame, holes marked.")
+    inputs = ("color1", "depth1", "camera_x")
+    optional_inputs = ("positions", "camera1")
+    outputs = ("color", "depth", "mv", "valid")
+    options = (Option("filter", "choice", "bilinear", "bilinear: sample frame 1 at the "
+                      "winner's sub-pixel source (fgen); nearest: the winner's own color "
+                      "(the paper's splat)", choices=("bilinear", "nearest")),
+               Option("crack_fill", "bool", True, "fill one-pixel splat cracks inside nearer "
+                      "surfaces (Mob-FGSR's 2x2 rule, shared gap_fill op; fgen addition)"))
+
+    def needed(self, ctx, facts):
+        if ctx.get("positions") is None and not facts.get("camera_moved", False):
+            return False, "static camera, static pixels: the rendered frame"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        from fgcli.ops import sanitize_depth, sanitize_values
+
+        c = ctx["color1"]
+        return {"color": sanitize_values(c), "depth": sanitize_depth(ctx["depth1"]),
+                "mv": torch.zeros(2, *c.shape[-2:], device=c.device),
+                "valid": torch.ones(1, *c.shape[-2:], dtype=torch.bool, device=c.device)}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import unproject, warp_positions
+
+        pos = ctx.get("positions")
+        if pos is None:
+            pos = unproject(ctx["depth1"], ctx["camera1"])
+        out = warp_positions(ctx["color1"], pos, ctx["camera_x"], self.filter, self.crack_fill)
+        return {"color": out["color"], "depth": out["depth"], "mv": out["mv"],
+                "valid": out["valid"]}
+
+
+@register
+class GffeBackgroundCollect(Stage):
+    name = "gffe_bg_collect"
+    help = ("GFFE layered background collection (Sec. 4.2, Fig. 5): two layers (full and "
+            "quarter size) of static color+depth, updated once per rendered frame by the "
+            "paper's two cases.")
+    inputs = ("color1", "depth1", "dynamic")
+    optional_inputs = ("camera1", "state", "number1")
+    outputs = ("bg",)
+    options = (Option("depth_tol", "float", 0.02, "relative depth margin for 'deeper'",
+                      range=(0.0, 10.0)),)
+    history = None
+
+    def needed(self, ctx, facts):
+        s = _store(ctx)
+        if s.get("bg_frame") is not None and s.get("bg_frame") == _frame_id(ctx):
+            return False, "collected once per rendered frame"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"bg": _store(ctx).get("bg")}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import collect_background
+
+        s = _store(ctx)
+        prev, cam_prev = s.get("bg"), s.get("bg_camera")
+        d1 = ctx["depth1"]
+        if prev is not None and tuple(prev[0]["depth"].shape[-2:]) != tuple(d1.shape[-2:]):
+            prev = None
+        bg = collect_background(ctx["color1"], d1, ~ctx["dynamic"], ctx["camera1"], prev,
+                                cam_prev, self.depth_tol)
+        s.update(bg=bg, bg_camera=ctx["camera1"], bg_frame=_frame_id(ctx))
+        return {"bg": bg}
+
+
+@register
+class GffeBackgroundProject(Stage):
+    name = "gffe_bg_project"
+    help = ("GFFE background projection: the collected layers seen by the extrapolated "
+            "camera fill only the holes of the warped frame.")
+    inputs = ("color", "depth", "mv", "valid", "camera_x")
+    optional_inputs = ("bg", "camera1")
+    outputs = ("color", "depth", "mv", "valid")
+    options = ()
+
+    def needed(self, ctx, facts):
+        if ctx.get("bg") is None:
+            return False, "no background collected"
+        if bool(ctx["valid"].all()):
+            return False, "no holes in the warped frame"
+        return True, ""
+
+    def skip(self, ctx):
+        return {k: ctx[k] for k in self.outputs}
+
+    def run(self, ctx):
+        import torch
+
+        from fgcli.ops.gffe import project_background
+
+        if ctx.get("bg") is None:
+            return self.skip(ctx)
+        holes = ~ctx["valid"]
+        c, d, m, filled = project_background(ctx["bg"], ctx["camera1"], ctx["camera_x"], holes)
+        return {"color": torch.where(filled, c, ctx["color"]),
+                "depth": torch.where(filled, d, ctx["depth"]),
+                "mv": torch.where(filled, m, ctx["mv"]), "valid": ctx["valid"] | filled}
+
+
+@register
+class GffeHoleFill(Stage):
+    name = "gffe_hole_fill"
+    help = ("Remaining holes after background projection: a far-biased push-pull "
+            "(validity-weighted pyramid) gives color and a background depth; mode=reproject "
+            "then reads frame 1 along that proxy surface where frame 1 sees it. Zero MVs in "
+            "push-pull pixels. The count goes to ctx['holes'] (fgen eval: hole_fill_fraction).")
+    inputs = ("color", "depth", "mv", "valid")
+    optional_inputs = ("color1", "depth1", "camera1", "camera_x")
+    outputs = ("color", "depth", "mv", "holes")
+    options = (
+        Option("far_bias", "float", 0.1, "pyramid levels average only pixels within this "
+               "relative depth of the farthest (disocclusions show background); -1 = plain "
+               "push-pull", range=(-1.0, 1.0)),
+        Option("mode", "choice", "reproject", "reproject (frame 1 through the background "
+               "proxy depth, else push-pull) or push_pull", choices=("reproject", "push_pull")),
+    )
+
+    def needed(self, ctx, facts):
+        if bool(ctx["valid"].all()):
+            return False, "no holes left"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"color": ctx["color"], "depth": ctx["depth"], "mv": ctx["mv"], "holes": 0}
+
+    def run(self, ctx):
+        import torch
+
+        from fgcli.ops.gffe import push_pull_fill, reproject_fill
+
+        v = ctx["valid"]
+        c, d = push_pull_fill(ctx["color"], v, ctx["depth"], self.far_bias)
+        mv = torch.where(v, ctx["mv"], torch.zeros_like(ctx["mv"]))
+        if self.mode == "reproject" and ctx.get("camera1") is not None \
+                and ctx.get("camera_x") is not None:
+            c, flow, took = reproject_fill(c, v, d, ctx["color1"], ctx["depth1"],
+                                           ctx["camera1"], ctx["camera_x"])
+            mv = torch.where(took, flow, mv)
+        return {"color": c, "depth": d, "mv": mv, "holes": int((~v).sum())}

@@ -1,0 +1,336 @@
+"""GFFE geometry-aware extrapolation (fgcli/ops/gffe.py, fgcli/stages/gffe.py,
+pipelines/gffe-extrap.toml): ops known answers, hard cases, state across frames and cuts,
+and chunked runs byte-identical to one run."""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from fgcli import pipeline as pl
+from fgcli.cli import cli
+from fgcli.errors import InputError
+from fgcli.frame import Camera, Frame
+from fgcli.ops.gffe import (collect_background, estimate_positions, extrapolate_camera,
+                            look_at, project, project_background, push_pull_fill,
+                            render_window, track_history, unproject, warp_positions)
+from fgcli.runner import RunState, make_ctx
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ORBIT = os.path.join(ROOT, "sample_data", "orbit", "input")
+H, W, D = 24, 32, 10.0
+
+
+def proj(fov=50.0, aspect=W / H, near=0.05, far=1000.0):
+    f = 1.0 / math.tan(math.radians(fov / 2))
+    return np.array([[f / aspect, 0, 0, 0], [0, f, 0, 0],
+                     [0, 0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+                     [0, 0, -1, 0]])
+
+
+def cam_at(x, y=0.0, z=0.0):
+    return Camera(look_at([x, y, z], [0, 0, -1], [0, 1, 0]), proj())
+
+
+def shift_per_frame(dx):
+    """Pixels a fronto-parallel plane at depth D moves when the camera moves dx in x."""
+    return proj()[0, 0] * dx / D * W / 2
+
+
+def plane_frame(n, cam_x, color, depth=D, mv_x=0.0):
+    return Frame(number=n, color=color, depth=torch.full((1, H, W), float(depth)),
+                 mv=torch.stack([torch.full((H, W), float(mv_x)), torch.zeros(H, W)]),
+                 camera=cam_at(cam_x))
+
+
+# ------------------------------------------------------------------------------- cameras
+
+def test_unproject_project_round_trip_and_sky_is_finite():
+    g = torch.Generator().manual_seed(0)
+    depth = 1 + 20 * torch.rand(1, H, W, generator=g)
+    depth[0, :3] = math.inf
+    depth[0, 5, 5] = 0.0
+    depth[0, 6, 6] = float("nan")
+    cam = cam_at(0.3, 1.0, 2.0)
+    X = unproject(depth, cam)
+    assert X.shape == (4, H, W) and torch.isfinite(X).all()
+    assert (X[3, :3] == 0).all() and X[:, 5, 5].abs().sum() == 0 and X[:, 6, 6].abs().sum() == 0
+    px, py, d, ok = project(X, cam, (H, W))
+    xs = torch.arange(W) + 0.5
+    good = ok & torch.isfinite(depth[0])
+    assert torch.allclose(px[good], xs.expand(H, W)[good], atol=2e-3)
+    assert torch.allclose(d[good], depth[0][good], rtol=1e-4)
+    assert torch.isinf(d[:3]).all() and ok[:3].all()  # sky: a direction, on screen
+    assert not ok[5, 5] and not ok[6, 6]
+
+
+def test_camera_extrapolation_is_exact_for_linear_motion():
+    c0, c1, c2 = cam_at(0.0), cam_at(0.4), cam_at(0.6)
+    v, p = extrapolate_camera(c0, c1, 0.5)
+    assert np.allclose(v, c2.world_to_camera, atol=1e-9) and np.array_equal(p, c1.projection)
+    v, _ = extrapolate_camera(c1, c1, 0.5)  # static: the current matrix, exactly
+    assert np.array_equal(v, c1.world_to_camera)
+    v, _ = extrapolate_camera(None, c1, 0.5)  # no history
+    assert np.array_equal(v, c1.world_to_camera)
+
+
+def test_render_window_grows_toward_the_camera_motion():
+    c0, c1 = cam_at(0.0), cam_at(0.5)
+    cx = extrapolate_camera(c0, c1, 0.5)
+    u0, v0, u1, v1 = render_window(c1, cx, D)
+    assert u0 == -1.0 and v0 == -1.0 and v1 == 1.0 and u1 > 1.0
+    # 0.25 units at depth 10 over a half-width of D / P00: exact
+    assert u1 == pytest.approx(1 + 0.25 / (D / proj()[0, 0]), rel=1e-6)
+    assert render_window(c1, extrapolate_camera(c1, c1, 0.5), D) == (-1.0, -1.0, 1.0, 1.0)
+
+
+# ------------------------------------------------------------------------------ history
+
+def test_static_scene_with_moving_camera_has_no_dynamic_pixels():
+    dx = 2 * D * 4 / (proj()[0, 0] * W)  # 4 px per frame
+    f0 = plane_frame(0, 0.0, torch.rand(3, H, W))
+    f1 = plane_frame(1, dx, torch.rand(3, H, W), mv_x=shift_per_frame(dx))
+    traj, dyn = track_history(f1.depth, f1.mv, f1.camera, f0.camera, f0.depth, k=3)
+    assert not dyn.any()
+    assert torch.equal(traj[0], traj[1]) and torch.equal(traj[1], traj[2])
+
+
+def test_moving_object_is_dynamic_and_its_trajectory_is_its_previous_position():
+    cam = cam_at(0.0)
+    d = torch.full((1, H, W), D)
+    mv = torch.zeros(2, H, W)
+    mv[0, 8:16, 8:16] = -3.0  # the patch was 3 px to the left: it moves right
+    traj, dyn = track_history(d, mv, cam, cam, d, k=2, threshold=0.5)
+    assert dyn[0, 8:16, 8:16].all() and dyn.sum() == 64
+    X = unproject(d, cam)
+    assert torch.allclose(traj[1][:, 8:16, 8:16], X[:, 8:16, 5:13], atol=1e-4)
+    # Eq. 1: NP = P0 + alpha (P0 - P1): half a frame = 1.5 px further right
+    npos = estimate_positions(traj, 0.5)
+    px, _, _, _ = project(npos, cam, (H, W))
+    assert torch.allclose(px[8:16, 8:16], (torch.arange(8, 16) + 0.5 + 1.5).expand(8, 8),
+                          atol=1e-3)
+
+
+def test_quadratic_positions_are_exact_for_constant_acceleration():
+    p = lambda t: torch.tensor([t * t, 2.0 * t, 0.0, 1.0]).view(4, 1, 1)  # noqa: E731
+    traj = torch.stack([p(0.0), p(-1.0), p(-2.0)])
+    assert torch.allclose(estimate_positions(traj, 0.5, "quadratic"), p(0.5), atol=1e-6)
+    lin = estimate_positions(traj, 0.5, "linear")
+    assert torch.allclose(lin, torch.tensor([-0.5, 1.0, 0.0, 1.0]).view(4, 1, 1))
+
+
+# -------------------------------------------------------------------------------- warp
+
+@pytest.mark.parametrize("filt", ["nearest", "bilinear"])
+def test_static_scene_moving_camera_extrapolates_exactly_where_geometry_is_visible(filt):
+    dx = 2 * D * 4 / (proj()[0, 0] * W)  # 4 px per frame -> 2 px at alpha 0.5
+    color = torch.rand(3, H, W, generator=torch.Generator().manual_seed(3))
+    f0 = plane_frame(0, 0.0, torch.zeros(3, H, W))
+    f1 = plane_frame(1, dx, color, mv_x=4.0)
+    traj, _ = track_history(f1.depth, f1.mv, f1.camera, f0.camera, f0.depth)
+    cx = extrapolate_camera(f0.camera, f1.camera, 0.5)
+    out = warp_positions(color, estimate_positions(traj, 0.5), cx, filt)
+    # content moves 2 px left: target column x shows frame 1's column x + 2
+    assert torch.allclose(out["color"][:, :, :W - 2], color[:, :, 2:], atol=2e-3)
+    assert out["valid"][:, :, :W - 2].all() and not out["valid"][:, :, W - 2:].any()
+    assert torch.allclose(out["mv"][0, :, :W - 2], torch.full((H, W - 2), 2.0), atol=1e-3)
+    assert torch.allclose(out["depth"][:, :, :W - 2], torch.full((1, H, W - 2), D), rtol=1e-5)
+
+
+def test_nearest_depth_wins_in_the_warp():
+    cam = cam_at(0.0)
+    d = torch.full((1, H, W), D)
+    d[0, :, 10:14] = 2.0  # a near pillar
+    X = unproject(d, cam)
+    color = torch.zeros(3, H, W)
+    color[0, :, 10:14] = 1.0
+    # move every far pixel 3 px right, onto the pillar: the pillar must stay on top
+    px, py, _, _ = project(X, cam, (H, W))
+    moved = X.clone()
+    far = d[0] > 5
+    shift = unproject(d, cam, px + 3.0, py)
+    moved[:, far] = shift[:, far]
+    out = warp_positions(color, moved, (cam.world_to_camera, cam.projection), "nearest")
+    assert (out["color"][0, :, 10:14] == 1.0).all()
+    assert torch.allclose(out["depth"][0, :, 10:14], torch.full((H, 4), 2.0), rtol=1e-5)
+
+
+# -------------------------------------------------------------------------- background
+
+def test_background_behind_a_moving_object_is_collected_and_projected():
+    cam = cam_at(0.0)
+    bgc = torch.rand(3, H, W, generator=torch.Generator().manual_seed(5))
+    d_wall = torch.full((1, H, W), D)
+    # frame 0: object over columns 4..9; frame 1: it moved to 12..17 (wall behind 4..9 seen)
+    c0, d0 = bgc.clone(), d_wall.clone()
+    c0[:, :, 4:10], d0[0, :, 4:10] = 1.0, 3.0
+    c1, d1 = bgc.clone(), d_wall.clone()
+    c1[:, :, 12:18], d1[0, :, 12:18] = 1.0, 3.0
+    static0 = torch.ones(1, H, W, dtype=torch.bool)
+    static0[0, :, 4:10] = False
+    layers = collect_background(c0, d0, static0, cam)
+    static1 = torch.ones(1, H, W, dtype=torch.bool)
+    static1[0, :, 12:18] = False
+    layers = collect_background(c1, d1, static1, cam, layers, cam)
+    assert layers[0]["valid"].all()  # the wall behind the object at 12..17 came from frame 0
+    assert torch.equal(layers[0]["color"][:, :, 12:18], bgc[:, :, 12:18])
+    holes = torch.zeros(1, H, W, dtype=torch.bool)
+    holes[0, :, 12:15] = True
+    c, d, m, filled = project_background(layers, cam, cam, holes)
+    assert torch.equal(filled, holes)
+    assert torch.equal(c[:, :, 12:15], bgc[:, :, 12:15])
+    assert (m.abs() < 1e-3).all()
+
+
+def test_push_pull_fills_every_hole_finitely():
+    color = torch.rand(3, 7, 5)
+    valid = torch.zeros(1, 7, 5, dtype=torch.bool)
+    valid[0, 0, 0] = True
+    depth = torch.full((1, 7, 5), math.inf)
+    depth[0, 0, 0] = 4.0
+    c, d = push_pull_fill(color, valid, depth)
+    assert torch.isfinite(c).all() and torch.allclose(c, color[:, :1, :1].expand(3, 7, 5))
+    assert torch.allclose(d, torch.full((1, 7, 5), 4.0))
+    c, d = push_pull_fill(color, torch.zeros_like(valid), depth)  # nothing valid
+    assert torch.isfinite(c).all() and not torch.isnan(d).any()
+    c, _ = push_pull_fill(torch.rand(3, 1, 1), torch.zeros(1, 1, 1, dtype=torch.bool))
+    assert torch.isfinite(c).all()
+
+
+# ---------------------------------------------------------------- pipeline, hard cases
+
+def _run_pipe(frames, alpha=0.5, state=None, detect_cuts=False, name="gffe-extrap"):
+    stages = pl.load(name).build("extrap")
+    state = state or RunState()
+    outs = []
+    for i, f1 in enumerate(frames):
+        ctx = make_ctx(frames[i - 1] if i else None, f1, alpha, "extrap")
+        ctx["state"], ctx["prev_time"] = state, 0.0
+        outs.append(pl.run_stages(stages, ctx, detect_cuts=detect_cuts))
+    return outs, state
+
+
+def test_first_frame_and_sky_give_finite_output():
+    g = torch.Generator().manual_seed(1)
+    frames = []
+    for n in range(3):
+        depth = 1 + 5 * torch.rand(1, H, W, generator=g)
+        depth[0, :8] = math.inf  # sky rows
+        depth[0, 10, :4] = 0.0
+        depth[0, 11, :4] = float("nan")
+        mv = (torch.rand(2, H, W, generator=g) - 0.5) * 6
+        mv[:, 12, 0] = float("nan")
+        frames.append(Frame(number=n, color=torch.rand(3, H, W, generator=g), depth=depth,
+                            mv=mv, camera=cam_at(0.2 * n)))
+    outs, state = _run_pipe(frames)
+    for o in outs:
+        assert torch.isfinite(o["color"]).all() and torch.isfinite(o["mv"]).all()
+        assert not torch.isnan(o["depth"]).any()
+        # sky stays sky (a few random-motion fragments may land on it)
+        assert torch.isinf(o["depth"][0, :6, 6:W - 6]).float().mean() > 0.9
+    traj = state.store["gffe"]["traj"]
+    assert traj is not None and torch.isfinite(traj).all()
+    assert (traj[:, 3, :8] == 0).all()  # sky: directions, never NaN positions
+
+
+def test_without_cameras_the_pipeline_refuses_clearly():
+    f = Frame(number=0, color=torch.rand(3, 4, 4), depth=torch.ones(1, 4, 4),
+              mv=torch.zeros(2, 4, 4))
+    with pytest.raises(InputError, match="needs per-frame cameras"):
+        _run_pipe([f])
+
+
+def test_a_scene_cut_resets_the_history():
+    g = torch.Generator().manual_seed(2)
+    mk = lambda n, c: Frame(number=n, color=c, depth=torch.full((1, H, W), D),  # noqa: E731
+                            mv=torch.zeros(2, H, W), camera=cam_at(0.1 * n))
+    bright = torch.rand(3, H, W, generator=g) * 0.2 + 0.8
+    dark = torch.rand(3, H, W, generator=g) * 0.05
+    frames = [mk(0, bright), mk(1, bright.roll(1, -1)), mk(2, dark)]
+    stages = pl.load("gffe-extrap").build("extrap")
+    state = RunState()
+    for i, f1 in enumerate(frames):
+        ctx = make_ctx(frames[i - 1] if i else None, f1, 0.5, "extrap")
+        ctx["state"], ctx["prev_time"] = state, 0.0
+        before = dict(state.store.get("gffe", {}))
+        ctx = pl.run_stages(stages, ctx, detect_cuts=True)
+        if i == 1:
+            assert state.store["gffe"]["bg_frame"] == 1
+        if i == 2:
+            assert before and ctx["facts"]["scene_cut"]
+            assert "gffe" not in state.store  # cleared: the next shot starts empty
+            assert torch.equal(ctx["color"], dark)
+
+
+def test_no_work_on_a_static_frame_stages_are_skipped():
+    f = plane_frame(0, 0.0, torch.rand(3, H, W))
+    stages = pl.load("gffe-extrap").build("extrap")
+    tm = pl.Timings()
+    for n in range(3):
+        ctx = make_ctx(f.replace(number=n - 1) if n else None, f.replace(number=n), 0.5,
+                       "extrap")
+        ctx["state"], ctx["prev_time"] = RunState(), 0.0
+        ctx = pl.run_stages(stages, ctx, tm, detect_cuts=False)
+        assert torch.equal(ctx["color"], f.color)
+    skipped = {s for _, s, _ in tm.skipped}
+    assert {"history", "warp", "bg_project", "hole_fill", "position"} <= skipped
+
+
+def test_count_three_reuses_the_per_frame_state():
+    dx = 0.1
+    frames = [plane_frame(n, dx * n, torch.rand(3, H, W), mv_x=shift_per_frame(dx))
+              for n in range(2)]
+    stages = pl.load("gffe-extrap").build("extrap")
+    state = RunState()
+    tm = pl.Timings()
+    for i, f1 in enumerate(frames):
+        for a in (0.25, 0.5, 0.75):
+            ctx = make_ctx(frames[i - 1] if i else None, f1, a, "extrap")
+            ctx["state"], ctx["prev_time"] = state, 0.0
+            pl.run_stages(stages, ctx, tm, detect_cuts=False)
+    why = [w for _, s, w in tm.skipped if s == "history"]
+    assert why.count("tracked once per rendered frame") == 4
+
+
+# ------------------------------------------------------------------------ runs, chunks
+
+def _cli(args):
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    return r
+
+
+def test_chunked_run_is_byte_identical_to_one_run(tmp_path):
+    import filecmp
+    import json
+
+    base = ["extrapolate", ORBIT, None, "--pipeline", "gffe-extrap", "--alpha", "0.5",
+            "--frames", "0-8x2", "--no-progress"]
+    one = tmp_path / "one"
+    _cli([x if x is not None else str(one) for x in base])
+    ch = tmp_path / "chunks"
+    for k in (1, 2, 3):
+        _cli([x if x is not None else str(ch) for x in base] + ["--chunk", f"{k}/3"])
+    names = sorted(f for f in os.listdir(one) if f.endswith(".exr"))
+    assert len(names) == 5
+    assert names == sorted(f for f in os.listdir(ch) if f.endswith(".exr"))
+    for n in names:
+        assert filecmp.cmp(one / n, ch / n, shallow=False), n
+    run = json.loads((one / "fgen-run.json").read_text())
+    assert set(run["render_windows"]) == {"0", "2", "4", "6", "8"}
+    assert all(len(w) == 4 and w[0] <= -1 and w[2] >= 1 for w in run["render_windows"].values())
+    c2 = json.loads((ch / "fgen-run.chunk-2-of-3.json").read_text())
+    assert c2["replayed_for_history"] >= 1  # job 0 replayed for chunk 2 of 3
+
+
+def test_count_three_makes_three_frames_per_rendered_frame(tmp_path):
+    out = tmp_path / "o"
+    _cli(["extrapolate", ORBIT, str(out), "--pipeline", "gffe-extrap", "--alpha", "0.25",
+          "--count", "3", "--frames", "0-2x2", "--no-progress"])
+    assert len([f for f in os.listdir(out) if f.endswith(".exr")]) == 6
+    shutil.rmtree(out)
