@@ -36,6 +36,11 @@ def cmd(name, sets, as_json):
             click.echo(f"  {i}. {s['id']} ({s['use']}) modes={','.join(s['modes'])}{state}")
             for k, v in s["options"].items():
                 click.echo(f"       {k} = {v!r}")
+        for mode, rows in d.get("flow", {}).items():
+            click.echo(f"  data flow ({mode}):")
+            for r in rows:
+                ins = ", ".join(f"{k} <- {src}" for k, src in r["inputs"])
+                click.echo(f"    {r['id']}: {ins} -> {', '.join(r['outputs'])}")
         return
     if name in reg:
         cls = reg[name]

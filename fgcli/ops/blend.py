@@ -41,7 +41,8 @@ def _agree(x, y, t_d):
 def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: torch.Tensor,
                  d1_sample: torch.Tensor, valid0: torch.Tensor, valid1: torch.Tensor,
                  d_target: torch.Tensor | None = None, alpha: float = 0.5,
-                 t_d_rel: float = T_D_REL, t_b: float = T_B, return_depth: bool = False):
+                 t_d_rel: float = T_D_REL, t_b: float = T_B, return_depth: bool = False,
+                 static: torch.Tensor | None = None):
     """Mob-FGSR Eq. 1: combine frame 0 and frame 1 warped to time alpha.
 
     Per pixel, with d0, d1 the warped depths and B the brightness difference
@@ -58,6 +59,11 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
     extension, off by default) case 3 first prefers the one sample whose depth agrees with
     d_target (same relative test), which keeps thin foreground objects whose warp to one
     frame slipped off them; if none or both agree, the farther sample as above.
+    With ``static`` ((1, H, W) bool: the pixel's surface does not move; an fgen extension
+    for shading motion, off by default as in the paper) case 2 becomes ``lerp(c0, c1,
+    alpha)`` whatever B where static: both samples are the same point of the same static
+    surface, so a cross-fade cannot ghost, and when only the lighting moves (B <= t_b: a
+    soft shadow edge) it follows the light where picking one frame jumps.
     Endpoints are exact: alpha == 0 returns c0_sample and alpha == 1 returns c1_sample
     (the generated frame *is* the rendered frame there).
 
@@ -116,7 +122,11 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
     pick1 = (dis & ~take0) | (v1 & ~v0)
     none = ~(v0 | v1)
     w = torch.full_like(d0, a)
-    w.masked_fill_(agree & similar, near_w)
+    if static is not None:
+        st = check_tensor(static, "static", 1, dtype_kind="bool")
+        w.masked_fill_(agree & similar & ~st, near_w)
+    else:
+        w.masked_fill_(agree & similar, near_w)
     w.masked_fill_(pick0, 0.0).masked_fill_(pick1, 1.0).masked_fill_(none, near_w)
     if a == 0.0 or a == 1.0:  # the generated frame is the rendered frame there
         color = (c0 if a == 0.0 else c1).clone()

@@ -34,9 +34,9 @@ class Dilate(Stage):
         return {"depth1_d": ctx["depth1"], "mv1_d": ctx["mv1"]}
 
     def run(self, ctx):
-        from fgcli.ops import dilate_nearest_depth
+        from fgcli.kernels import op
 
-        d, m = dilate_nearest_depth(ctx["depth1"], ctx["mv1"], self.radius)
+        d, m = op("dilate_nearest_depth", ctx)(ctx["depth1"], ctx["mv1"], self.radius)
         return {"depth1_d": d, "mv1_d": m}
 
 
@@ -84,8 +84,9 @@ class Splat(Stage):
             mode=ctx["mode"])}
 
     def run(self, ctx):
-        from fgcli.ops import splat_motion
+        from fgcli.kernels import op
 
+        splat_motion = op("splat_motion", ctx)
         model = self.model(ctx["mode"])
         mv0 = ctx.get("mv0") if model == "quadratic" else None
         d0 = ctx.get("depth0") if (mv0 is not None and self.mv0_depth_check) else None
@@ -114,8 +115,9 @@ class GapFill(_HoleStage):
     )
 
     def run(self, ctx):
-        from fgcli.ops import gap_fill
+        from fgcli.kernels import op
 
+        gap_fill = op("gap_fill", ctx)
         fb = fbd = None
         if self.fallback == "prev_mv" and ctx["mode"] == "interp":
             # holes are surfaces only frame 0 sees: its vectors and depth
@@ -135,9 +137,9 @@ class ExtrapHoleFill(_HoleStage):
     options = (Option("depth_threshold", "float", 1e-3, "relative depth margin", range=(0.0, 1.0)),)
 
     def run(self, ctx):
-        from fgcli.ops import fill_extrap_holes
+        from fgcli.kernels import op
 
-        return {"motion": fill_extrap_holes(ctx["motion"], ctx["mv1"], ctx["depth1_d"],
+        return {"motion": op("fill_extrap_holes", ctx)(ctx["motion"], ctx["mv1"], ctx["depth1_d"],
                                             self.depth_threshold)}
 
 
@@ -169,17 +171,14 @@ class Warp(Stage):
                 "sd1": sanitize_depth(ctx["depth1"]), "v0": ones, "v1": ones}
 
     def run(self, ctx):
-        from fgcli.ops import backward_warp, sample_nearest
+        from fgcli.kernels import op
 
         m = ctx["motion"]
-        s1, v1 = backward_warp(ctx["color1"], m.to1, self.filter)
-        sd1, _ = sample_nearest(ctx["depth1"], m.to1)
-        out = {"s1": s1, "v1": v1, "sd1": sd1, "s0": None, "sd0": None, "v0": None}
-        if ctx["mode"] == "interp":
-            s0, v0 = backward_warp(ctx["color0"], m.to0, self.filter)
-            sd0, _ = sample_nearest(ctx["depth0"], m.to0)
-            out.update(s0=s0, v0=v0, sd0=sd0)
-        return out
+        two = ctx["mode"] == "interp"
+        s1, v1, sd1, s0, v0, sd0 = op("warp_frames", ctx)(
+            ctx["color1"], ctx["depth1"], m.to1, ctx["color0"] if two else None,
+            ctx["depth0"] if two else None, m.to0 if two else None, self.filter)
+        return {"s1": s1, "v1": v1, "sd1": sd1, "s0": s0, "sd0": sd0, "v0": v0}
 
 
 @register
@@ -198,18 +197,26 @@ class Blend(Stage):
                range=(0.0, 10.0)),
         Option("target_depth", "bool", False, "prefer the sample whose depth matches the "
                "splatted depth when the two disagree (fgen extension)"),
+        Option("static_crossfade", "bool", True, "shading motion: where the pixel's surface "
+               "does not move and the depths agree, cross-fade instead of taking one frame "
+               "(fgen extension, default since it never lost on the bundled scenes: shadows "
+               "+5.2 dB; the paper's Eq. 1: static_crossfade=false)"),
     )
 
     def run(self, ctx):
-        from fgcli.ops import blend_interp
+        from fgcli.kernels import op
 
         if ctx["mode"] == "extrap":
             return {"color": ctx["s1"], "depth": ctx["sd1"]}
         dt = ctx["motion"].depth if self.target_depth and ctx.get("motion") is not None else None
         # the generated frame's depth follows the same per-pixel choice as its color
-        color, depth = blend_interp(ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"],
-                                    ctx["v1"], dt, ctx["alpha"], self.t_d, self.t_b,
-                                    return_depth=True)
+        m = ctx.get("motion")
+        # static cross-fade: pixels whose surface sits still from frame 0 to frame 1
+        # (no motion; fgcli.kernels.reference.static_mask)
+        color, depth = op("blend_eq1", ctx)(
+            ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
+            ctx["alpha"], self.t_d, self.t_b,
+            static_from=m if self.static_crossfade else None)
         return {"color": color, "depth": depth}
 
 

@@ -1,0 +1,524 @@
+"""FSR 3 frame interpolation (FidelityFX Frame Interpolation 1.0 + FfxOpticalFlow), as pure
+tensor functions: one function per pass of shared/seeds/003 and ALGORITHMS.md.
+
+Frames: "0" the previous (older) rendered frame, "1" the current one; alpha the generated
+time in [0, 1] (FSR 3 interpolates at 0.5; fgen generalises every "0.5" to the time:
+a surface at p1 in frame 1 with vector v = mv1(p1) sits at ``p1 + (1 - alpha) v`` at time
+alpha and at ``p1 + v`` in frame 0). Index coordinates (pixel centre of column x is x).
+
+Vector fields of the interpolated frame are stored as FSR 3 does: per component an entry
+``priority << 16 | half-float bits`` written with an atomic max (scatter_reduce 'amax'),
+priority = ``primary (1 bit) << 15 | depth or magnitude priority (10 bits) << 5 |
+colour-agreement priority (5 bits)``. fgen stores the full frame-1 -> frame-0 vector v
+(FSR 3 stores 0.5 v; same thing at alpha = 0.5). A field entry of 0 means "not written".
+
+Passes (ops below): reconstruct_depths, vector_field (game / optical-flow field),
+unpack_vector_field + fill_vector_field (pyramid inpainting, fgcli.ops.pyramid),
+luma8, block_flow / dis_flow (optical flow), disocclusion_masks, interpolate_fsr3,
+pyramid_inpaint (colour).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from fgcli.ops._util import (check_alpha, check_same, check_tensor, sanitize_depth,
+                             sanitize_mv, sanitize_values)
+from fgcli.ops.color import luminance, srgb_oetf
+from fgcli.ops.pyramid import pyramid_inpaint
+from fgcli.ops.warp import backward_warp
+
+KSEP = 1.37e-5  # FSR 2/3 minimum triangle separation constant
+SHORT_MV = 0.1  # px: shorter vectors are zeroed in depth reconstruction
+TAP_THRESHOLD = 0.05  # bilinear-footprint taps with a smaller weight are not written
+HALF_MAX = 65504.0
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _footprint(pos: torch.Tensor, h: int, w: int, thr: float = TAP_THRESHOLD):
+    """Bilinear footprint of positions pos (2, N) (index coords): four (flat index into a
+    (h+2) x (w+2) buffer with a discard ring, mask) pairs; a tap is written when its
+    bilinear weight exceeds thr. Off-screen taps land on the ring."""
+    x = pos[0].clamp(-2.0, w + 1.0)
+    y = pos[1].clamp(-2.0, h + 1.0)
+    x0 = torch.floor(x)
+    y0 = torch.floor(y)
+    fx = x - x0
+    fy = y - y0
+    out = []
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        wt = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+        xi = (x0 + dx).clamp(-1, w).add_(1).to(torch.int64)
+        yi = (y0 + dy).clamp(-1, h).add_(1).to(torch.int64)
+        out.append((yi * (w + 2) + xi, wt > thr))
+    return out
+
+
+def _crop(buf: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    return buf.view(-1, h + 2, w + 2)[:, 1:h + 1, 1:w + 1]
+
+
+def _positions(h, w, dev):
+    yy, xx = torch.meshgrid(torch.arange(h, dtype=torch.float32, device=dev),
+                            torch.arange(w, dtype=torch.float32, device=dev), indexing="ij")
+    return torch.stack([xx, yy]).view(2, -1)
+
+
+def camera_kfov(projection=None, width: int = 16, height: int = 9,
+                fov_deg: float = 60.0) -> float:
+    """FSR's Kfov = |corner ray| / |centre ray| = sqrt(1 + tan(fovx/2)^2 + tan(fovy/2)^2),
+    from a 4x4 projection (P[0][0] = 1/tan(fovx/2), P[1][1] = 1/tan(fovy/2)) or, without
+    one, from a vertical fov (default 60 degrees) and the aspect ratio."""
+    if projection is not None:
+        p00, p11 = float(projection[0][0]), float(projection[1][1])
+        if math.isfinite(p00) and math.isfinite(p11) and p00 != 0 and p11 != 0:
+            return math.sqrt(1.0 + 1.0 / p00 ** 2 + 1.0 / p11 ** 2)
+    ty = math.tan(math.radians(fov_deg) / 2)
+    tx = ty * width / max(height, 1)
+    return math.sqrt(1.0 + tx * tx + ty * ty)
+
+
+# ----------------------------------------------------------------------------- pass 1
+
+def reconstruct_depths(depth: torch.Tensor, mv: torch.Tensor, alpha: float = 0.5,
+                       short_mv: float = SHORT_MV, tap_threshold: float = TAP_THRESHOLD):
+    """FSR 3 previous-frame and interpolated-frame depth reconstruction.
+
+    Each pixel p of frame 1 (usually 3x3 nearest-depth dilated depth and vector, see
+    dilate_nearest_depth) splats its depth over the bilinear footprint of ``p + v``
+    (previous frame) and of ``p + (1 - alpha) v`` (interpolated frame) with an atomic min
+    (scatter_reduce 'amin': the nearest surface wins). Vectors shorter than short_mv px
+    are zeroed; footprint taps with bilinear weight <= tap_threshold are not written.
+
+    Args:
+        depth: (1, H, W) linear depth (NaN -> +inf, negative -> 0). mv: (2, H, W) px.
+        alpha: generated time in [0, 1].
+
+    Returns:
+        (depth_prev, depth_t), each (1, H, W): +inf where nothing landed (and sky).
+    """
+    depth = check_tensor(depth, "depth", 1, allow_batch=False)
+    mv = check_tensor(mv, "mv", 2, allow_batch=False)
+    check_same(depth, "depth", (mv, "mv"))
+    a = check_alpha(alpha)
+    h, w = depth.shape[-2:]
+    d = sanitize_depth(depth).reshape(-1)
+    v = sanitize_mv(mv).reshape(2, -1)
+    v = v * (v.norm(dim=0, keepdim=True) >= short_mv)
+    p = _positions(h, w, depth.device)
+    outs = []
+    for k in (1.0, 1.0 - a):
+        buf = torch.full(((h + 2) * (w + 2),), math.inf, device=depth.device)
+        for idx, m in _footprint(p + v * k, h, w, tap_threshold):
+            buf.scatter_reduce_(0, idx, torch.where(m, d, math.inf), reduce="amin")
+        outs.append(_crop(buf[None], h, w).clone())
+    return outs[0], outs[1]
+
+
+# ----------------------------------------------------------------------------- pass 2
+
+def depth_priority(depth: torch.Tensor) -> torch.Tensor:
+    """FSR 3's 10-bit "near is better" priority: ``z' = z^0.33``,
+    ``max(1, floor((1 - z'/(1 + z')) * 1023))``; +inf (sky) -> 1, 0 -> 1023. int64, any
+    shape."""
+    z = sanitize_depth(depth).clamp(max=1e30).pow(0.33)
+    hi = ((1.0 - z / (1.0 + z)) * 1023.0).floor()
+    return hi.clamp(1.0, 1023.0).to(torch.int64)
+
+
+def magnitude_priority(vec: torch.Tensor, scale: float = 8.0) -> torch.Tensor:
+    """10-bit priority of an optical-flow vector from its magnitude m (px): moving content
+    wins over static, ``max(1, floor(1023 m / (m + scale)))``. (2, ...) -> (1, ...) int64."""
+    m = sanitize_mv(vec).norm(dim=0, keepdim=True)
+    return (1023.0 * m / (m + scale)).floor().clamp(1.0, 1023.0).to(torch.int64)
+
+
+def agreement_priority(l0: torch.Tensor, l1: torch.Tensor) -> torch.Tensor:
+    """5-bit colour agreement ``round(min/max(L0 + 0.001, L1 + 0.001) * 31)``, int64."""
+    a = l0.clamp(min=0.0) + 0.001
+    b = l1.clamp(min=0.0) + 0.001
+    r = torch.minimum(a, b) / torch.maximum(a, b)
+    return torch.round(torch.nan_to_num(r, nan=1.0) * 31.0).clamp(0, 31).to(torch.int64)
+
+
+def pack_entries(primary: bool, hi: torch.Tensor, lo: torch.Tensor, comp: torch.Tensor):
+    """``(primary << 15 | hi << 5 | lo) << 16 | half_bits(comp)`` as int64 (same shape)."""
+    prio = (hi.clamp(0, 1023) << 5) | lo.clamp(0, 31)
+    if primary:
+        prio = prio | (1 << 15)
+    bits = comp.clamp(-HALF_MAX, HALF_MAX).to(torch.float16).view(torch.int16)
+    return (prio << 16) | (bits.to(torch.int64) & 0xFFFF)
+
+
+def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
+                 hi: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
+                 max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD) -> torch.Tensor:
+    """FSR 3 vector field of the interpolated frame (GameMotionVectorField pass; with
+    optical-flow vectors and magnitude priority, the OpticalFlowVectorField pass).
+
+    Every pixel p of frame 1 with vector v writes the packed entries (primary flag, hi, lo =
+    agreement_priority of frame 0's luminance at p + v and frame 1's at p; lo = 0 when p + v
+    is off-screen) with an atomic max into the bilinear footprint of ``p + (1 - alpha) v``.
+    Secondary entries (primary flag 0, same hi/lo) step back from there toward p, one
+    texel per pixel of distance (at most max_secondary), each into the footprint's base
+    texel, stopping after the fourth primary texel hit (FSR 3: "to cover the area the
+    object leaves").
+
+    Args:
+        color0, color1: (3, H, W). vec: (2, H, W) px (frame 1 -> frame 0).
+        hi: (1, H, W) int64 in [1, 1023] (depth_priority of the dilated depth, or
+            magnitude_priority). alpha in [0, 1].
+
+    Returns:
+        (2, H, W) int64 packed entries (x, y); 0 = not written.
+    """
+    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
+    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    check_same(color0, "color0", (color1, "color1"), (vec, "vec"))
+    a = check_alpha(alpha)
+    h, w = vec.shape[-2:]
+    dev = vec.device
+    v = sanitize_mv(vec)
+    s0, inside = backward_warp(luminance(sanitize_values(color0)), v)
+    l1 = luminance(sanitize_values(color1))
+    lo = agreement_priority(s0, l1) * inside
+    hi = hi.reshape(-1)
+    lo = lo.reshape(-1)
+    vf = v.reshape(2, -1)
+    p = _positions(h, w, dev)
+    pos = p + vf * (1.0 - a)
+    keys = [pack_entries(True, hi, lo, vf[c]) for c in (0, 1)]
+    buf = torch.zeros(2, (h + 2) * (w + 2), dtype=torch.int64, device=dev)
+    for idx, m in _footprint(pos, h, w, tap_threshold):
+        for c in (0, 1):
+            buf[c].scatter_reduce_(0, idx, keys[c] * m, reduce="amax")
+    if secondary and max_secondary > 0:
+        dist = (vf * (1.0 - a)).norm(dim=0)
+        steps = int(min(max_secondary, math.floor(float(dist.max())) if dist.numel() else 0))
+        if steps >= 1:
+            prim = buf[0] >= (1 << 31)  # primary texels (flag = bit 31)
+            src = (dist >= 1.0).nonzero().view(-1)
+            d = vf[:, src] / dist[src].clamp(min=1e-6)
+            hits = torch.zeros(src.numel(), dtype=torch.int64, device=dev)
+            kx = [pack_entries(False, hi[src], lo[src], vf[c, src]) for c in (0, 1)]
+            sec = torch.zeros_like(buf)
+            for k in range(1, steps + 1):
+                act = (dist[src] >= k) & (hits <= 3)
+                if not bool(act.any()):
+                    break
+                q = pos[:, src] - d * k
+                xi = torch.floor(q[0]).clamp(-1, w).add_(1).to(torch.int64)
+                yi = torch.floor(q[1]).clamp(-1, h).add_(1).to(torch.int64)
+                idx = yi * (w + 2) + xi
+                onscreen = (xi >= 1) & (xi <= w) & (yi >= 1) & (yi <= h)
+                act &= onscreen
+                hits += (prim[idx] & act).to(torch.int64)
+                act &= hits <= 3
+                for c in (0, 1):
+                    sec[c].scatter_reduce_(0, idx, kx[c] * act, reduce="amax")
+            buf = torch.maximum(buf, sec)
+    return _crop(buf, h, w).clone()
+
+
+def unpack_vector_field(field: torch.Tensor):
+    """Packed field (2, H, W) int64 -> (vec (2, H, W) float32, priority (1, H, W) int64
+    (16 bits: primary | hi | lo), valid (1, H, W) bool)."""
+    if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2:
+        raise ValueError("field: expected a (2, H, W) int64 tensor")
+    bits = (field & 0xFFFF).to(torch.int32)
+    bits = torch.where(bits >= 32768, bits - 65536, bits).to(torch.int16)
+    vec = bits.view(torch.float16).to(torch.float32)
+    vec = torch.nan_to_num(vec, nan=0.0, posinf=HALF_MAX, neginf=-HALF_MAX)
+    prio = (field[1:2] >> 16) & 0xFFFF
+    valid = prio > 0
+    return vec * valid, prio, valid
+
+
+def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Tensor):
+    """FSR 3 vector-field inpainting: texels never written take the first coarser level
+    of a priority-weighted mip pyramid of the written vectors that has data (bilinear taps
+    weighted by priority; pyramid_inpaint mode 'first').
+
+    vec (2, H, W), priority (1, H, W) int, valid (1, H, W) bool -> (vec (2, H, W),
+    filled (1, H, W) bool: had no entry and got one). An all-empty field stays 0."""
+    wgt = priority.to(torch.float32) / 65535.0 * valid
+    out, filled = pyramid_inpaint(vec, wgt, ~valid, mode="first")
+    return out, filled
+
+
+# ----------------------------------------------------------------------------- optical flow
+
+def luma8(color: torch.Tensor) -> torch.Tensor:
+    """8-bit display luminance (FfxOpticalFlow input): round(255 sRGB(clip(Y))), float32
+    (1, H, W) with integer values 0..255."""
+    color = check_tensor(color, "color", 3, allow_batch=False)
+    return torch.round(srgb_oetf(luminance(sanitize_values(color))) * 255.0)
+
+
+def _vector_median3(f: torch.Tensor) -> torch.Tensor:
+    """3x3 vector median (the neighbour minimising the summed L1 distance to the others;
+    edge-replicated). (2, h, w) -> (2, h, w)."""
+    h, w = f.shape[-2:]
+    p = F.pad(f[None], (1, 1, 1, 1), mode="replicate")[0]
+    nb = torch.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)])
+    cost = (nb[:, None] - nb[None]).abs().sum(dim=2).sum(dim=1)  # (9, h, w)
+    # ties: prefer the centre (index 4)
+    cost[4] -= 1e-3
+    best = cost.argmin(dim=0)
+    return torch.gather(nb, 0, best[None, None].expand(1, 2, h, w))[0]
+
+
+def _block_level(cur, prev, pred, block, search):
+    """One pyramid level: SAD block search around the prediction. cur, prev (h, w);
+    pred (2, nby, nbx) integer px -> (2, nby, nbx)."""
+    h, w = cur.shape
+    nby, nbx = pred.shape[-2:]
+    dev = cur.device
+    r = torch.arange(block, device=dev)
+    oy = (torch.arange(nby, device=dev) * block)[:, None].expand(nby, nbx).reshape(-1)
+    ox = (torch.arange(nbx, device=dev) * block)[None, :].expand(nby, nbx).reshape(-1)
+    cy = (oy[:, None] + r).clamp(max=h - 1)
+    cx = (ox[:, None] + r).clamp(max=w - 1)
+    curb = cur.reshape(-1)[(cy[:, :, None] * w + cx[:, None, :])]  # (N, b, b)
+    n_off = 2 * search  # offsets -search .. search-1
+    win = block + n_off - 1
+    rw = torch.arange(win, device=dev)
+    py = pred[1].reshape(-1).to(torch.int64)
+    px = pred[0].reshape(-1).to(torch.int64)
+    wy = (oy[:, None] + py[:, None] - search + rw).clamp(0, h - 1)
+    wx = (ox[:, None] + px[:, None] - search + rw).clamp(0, w - 1)
+    wins = prev.reshape(-1)[(wy[:, :, None] * w + wx[:, None, :])]  # (N, win, win)
+    # 8-bit values: int16 differences, int32 sums (about 2x float32 on CPU)
+    ci = curb.to(torch.int16)
+    wi = wins.to(torch.int16)
+    cost = torch.empty(ci.shape[0], n_off, n_off, dtype=torch.int32, device=dev)
+    for dy in range(n_off):
+        rows = wi[:, dy:dy + block, :].contiguous()
+        for dx in range(n_off):
+            cost[:, dy, dx] = (rows[:, :, dx:dx + block] - ci).abs_().sum(dim=(1, 2),
+                                                                         dtype=torch.int32)
+    off = (torch.arange(n_off, device=dev) - search).abs().to(torch.int32)
+    # ties go to the smallest offset (a static block stays static): exact integer keys
+    cost = cost * 64 + (off[:, None] + off[None, :])  # (N, dy, dx)
+    best = cost.view(cost.shape[0], -1).argmin(dim=1)
+    by = torch.div(best, n_off, rounding_mode="floor") - search
+    bx = best % n_off - search
+    return torch.stack([px + bx, py + by]).view(2, nby, nbx).to(torch.float32)
+
+
+def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: int = 8,
+               search: int = 8, median: bool = True) -> torch.Tensor:
+    """FfxOpticalFlow-style luminance-pyramid block matching, frame 1 -> frame 0.
+
+    A ``levels``-level pyramid (2x2 box averages) of the 8-bit luminances; from the
+    coarsest level to the finest, each block x block block of frame 1 searches integer
+    offsets -search .. search-1 around twice the coarser level's vector of its parent
+    block for the minimum sum of absolute differences against frame 0 (edge-replicated;
+    ties to the smallest offset), then a 3x3 vector-median filter cleans the block field.
+
+    Args:
+        lum0, lum1: (1, H, W) luminance (luma8). levels >= 1, block >= 1, search >= 1.
+
+    Returns:
+        (2, ceil(H/block), ceil(W/block)) block vectors in px (1/block resolution):
+        block b of frame 1 is at ``b + flow`` in frame 0.
+    """
+    lum0 = check_tensor(lum0, "lum0", 1, allow_batch=False)
+    lum1 = check_tensor(lum1, "lum1", 1, allow_batch=False)
+    check_same(lum0, "lum0", (lum1, "lum1"))
+    p0 = [torch.nan_to_num(lum0, nan=0.0).clamp(0.0, 255.0).round()]
+    p1 = [torch.nan_to_num(lum1, nan=0.0).clamp(0.0, 255.0).round()]
+    while len(p0) < levels and min(p0[-1].shape[-2:]) >= 2 * block:
+        p0.append(torch.round(F.avg_pool2d(p0[-1][None], 2, ceil_mode=True)[0]))
+        p1.append(torch.round(F.avg_pool2d(p1[-1][None], 2, ceil_mode=True)[0]))
+    flow = None
+    for lv in range(len(p0) - 1, -1, -1):
+        h, w = p0[lv].shape[-2:]
+        nby, nbx = -(-h // block), -(-w // block)
+        if flow is None:
+            pred = torch.zeros(2, nby, nbx, device=lum0.device)
+        else:
+            up = flow.repeat_interleave(2, 1).repeat_interleave(2, 2)
+            pred = F.pad(up, (0, max(0, nbx - up.shape[2]), 0, max(0, nby - up.shape[1])),
+                         mode="replicate")[:, :nby, :nbx] * 2.0
+        flow = _block_level(p1[lv][0], p0[lv][0], pred, block, search)
+        if median:
+            flow = _vector_median3(flow)
+    return flow
+
+
+def dis_flow(lum0: torch.Tensor, lum1: torch.Tensor, preset: str = "medium") -> torch.Tensor:
+    """OpenCV DIS optical flow (a stand-in for FfxOpticalFlow, labelled as such), frame 1 ->
+    frame 0, full resolution. (1, H, W) 8-bit luminances -> (2, H, W) px. Images smaller
+    than 32 px are edge-padded for OpenCV and cropped back."""
+    import cv2
+    import numpy as np
+
+    lum0 = check_tensor(lum0, "lum0", 1, allow_batch=False)
+    lum1 = check_tensor(lum1, "lum1", 1, allow_batch=False)
+    check_same(lum0, "lum0", (lum1, "lum1"))
+    h, w = lum0.shape[-2:]
+    ph, pw = max(0, 32 - h), max(0, 32 - w)
+
+    def u8(x):
+        a = torch.nan_to_num(x[0], nan=0.0).clamp(0, 255).to(torch.uint8).cpu().numpy()
+        return np.pad(a, ((0, ph), (0, pw)), mode="edge") if (ph or pw) else a
+
+    presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+               "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+    dis = cv2.DISOpticalFlow_create(presets[preset])
+    f = dis.calc(u8(lum1), u8(lum0), None)[:h, :w]
+    out = torch.from_numpy(np.ascontiguousarray(f.transpose(2, 0, 1))).to(lum0.device)
+    return sanitize_mv(torch.nan_to_num(out, nan=0.0))
+
+
+def upsample_block_flow(flow: torch.Tensor, h: int, w: int, block: int = 8) -> torch.Tensor:
+    """Each pixel takes its block's vector: (2, nby, nbx) -> (2, h, w)."""
+    up = flow.repeat_interleave(block, 1).repeat_interleave(block, 2)
+    return up[:, :h, :w].contiguous()
+
+
+# ----------------------------------------------------------------------------- masks
+
+def _same_surface(za, zb, thr):
+    """Ksep Kfov width min(za, zb) / |za - zb| >= 1 (thr = Ksep Kfov width); equal depths
+    (inf == inf, 0 == 0) are the same surface."""
+    diff = (za - zb).abs()
+    return (za == zb) | (torch.minimum(za, zb) * thr >= diff)
+
+
+def _tap_mask(depth_src, pos, depth_ref, thr):
+    """Sum of the bilinear weights of on-screen taps of depth_src at pos (2, N) that are
+    the same surface as depth_ref (N,), or farther (one-sided, as FSR 2's depth clip: only
+    a nearer surface at the source hides the target)."""
+    h, w = depth_src.shape[-2:]
+    d = sanitize_depth(depth_src).reshape(-1)
+    x = pos[0].clamp(-2.0, w + 1.0)
+    y = pos[1].clamp(-2.0, h + 1.0)
+    x0 = torch.floor(x)
+    y0 = torch.floor(y)
+    fx, fy = x - x0, y - y0
+    acc = torch.zeros_like(x)
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        wt = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+        xi, yi = x0 + dx, y0 + dy
+        on = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
+        idx = (yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)).to(torch.int64)
+        z = d[idx]
+        ok = _same_surface(z, depth_ref, thr) | (z > depth_ref)
+        acc += wt * (on & ok)
+    return acc
+
+
+def disocclusion_masks(depth_t: torch.Tensor, depth_prev: torch.Tensor, depth1: torch.Tensor,
+                       vec: torch.Tensor, alpha: float = 0.5, kfov: float = 1.4,
+                       ksep: float = KSEP, threshold: float = 0.5):
+    """FSR 3's two disocclusion masks of the interpolated frame.
+
+    For the pixel q with vector v (the filled game field) and interpolated depth z_t(q):
+    toward the previous frame the bilinear taps of the reconstructed previous depth at
+    ``q + alpha v``, toward the current frame the taps of frame 1's (dilated) depth at
+    ``q - (1 - alpha) v``. A tap agrees when it is the same surface,
+    ``Ksep Kfov W min(z_a, z_b) / |z_a - z_b| >= 1`` (W = image width), or farther (FSR 2's
+    one-sided depth clip); the mask is 1 where the agreeing taps' bilinear weight reaches
+    ``threshold`` (FSR 3 stores binary masks), else 0 (disoccluded toward that frame).
+
+    Args:
+        depth_t, depth_prev, depth1: (1, H, W). vec: (2, H, W) px. alpha in [0, 1].
+        kfov: camera_kfov(...). ksep: 1.37e-5.
+
+    Returns:
+        (mask_prev, mask_cur): (1, H, W) float32 in {0, 1}.
+    """
+    depth_t = check_tensor(depth_t, "depth_t", 1, allow_batch=False)
+    depth_prev = check_tensor(depth_prev, "depth_prev", 1, allow_batch=False)
+    depth1 = check_tensor(depth1, "depth1", 1, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    check_same(depth_t, "depth_t", (depth_prev, "depth_prev"), (depth1, "depth1"), (vec, "vec"))
+    a = check_alpha(alpha)
+    h, w = depth_t.shape[-2:]
+    thr = float(ksep) * float(kfov) * w
+    v = sanitize_mv(vec).reshape(2, -1)
+    p = _positions(h, w, vec.device)
+    zt = sanitize_depth(depth_t).reshape(-1)
+    mp = _tap_mask(depth_prev, p + v * a, zt, thr) >= threshold
+    mc = _tap_mask(depth1, p - v * (1.0 - a), zt, thr) >= threshold
+    return mp.view(1, h, w).float(), mc.view(1, h, w).float()
+
+
+# ----------------------------------------------------------------------------- interpolation
+
+def color_similarity(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """FSR 3's colour similarity ``dot(a/m, b/m)``, m = max(|a|, |b|) (RGB lengths):
+    1 for equal colours (both black included), smaller as they differ.
+    (3, H, W) x2 -> (1, H, W)."""
+    na = a.norm(dim=0, keepdim=True)
+    nb = b.norm(dim=0, keepdim=True)
+    m = torch.maximum(na, nb)
+    s = (a * b).sum(dim=0, keepdim=True) / (m * m).clamp(min=eps)
+    return torch.where(m <= eps, torch.ones_like(s), s)
+
+
+def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
+                     mask_prev: torch.Tensor, mask_cur: torch.Tensor, alpha: float = 0.5,
+                     of_vec: torch.Tensor | None = None):
+    """FSR 3 interpolation pass.
+
+    Game path: ``P = color0(q + alpha v)``, ``C = color1(q - (1 - alpha) v)`` (bilinear),
+    masks x = mask_prev and y = mask_cur (0 also where the sample is off-screen),
+    ``t = alpha + (1 - alpha)(1 - x) - alpha (1 - y)`` clamped to [0, 1] (FSR 3's
+    ``0.5 + 0.5(1-x) - 0.5(1-y)`` at alpha = 0.5), ``C_game = lerp(P, C, t)``. With optical
+    flow the same with its vectors gives C_of (same t), and with the similarities
+    S = color_similarity of each path's two samples, ``bias = clamp(S_game / S_of, 0, 1)``
+    and the output is ``lerp(C_of, C_game, bias)`` (the better-matching pair wins). Where
+    exactly one mask is 0 the game path resolved a disocclusion by depth, its two samples
+    differ by construction, and bias is 1 (fgen's reading: the similarity rule is meant for
+    pixels both frames see). Pixels with both masks 0 are holes (for inpainting).
+
+    Args:
+        color0, color1: (3, H, W). vec, of_vec: (2, H, W) px (frame 1 -> frame 0).
+        mask_prev, mask_cur: (1, H, W) in [0, 1]. alpha in [0, 1].
+
+    Returns:
+        (color (3, H, W), holes (1, H, W) bool, bias (1, H, W) float: 1 = game vectors).
+    """
+    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
+    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    if of_vec is not None:
+        of_vec = check_tensor(of_vec, "of_vec", 2, allow_batch=False)
+    check_same(color0, "color0", (color1, "color1"), (vec, "vec"), (of_vec, "of_vec"))
+    a = check_alpha(alpha)
+    v = sanitize_mv(vec)
+    P, in0 = backward_warp(color0, v * a)
+    C, in1 = backward_warp(color1, v * -(1.0 - a))
+    x = mask_prev * in0
+    y = mask_cur * in1
+    t = (a + (1.0 - a) * (1.0 - x) - a * (1.0 - y)).clamp(0.0, 1.0)
+    out = torch.lerp(P, C, t)
+    holes = (x <= 0) & (y <= 0)
+    bias = torch.ones_like(t)
+    if of_vec is not None:
+        o = sanitize_mv(of_vec)
+        Po, _ = backward_warp(color0, o * a)
+        Co, _ = backward_warp(color1, o * -(1.0 - a))
+        c_of = torch.lerp(Po, Co, t)
+        s_game = color_similarity(P, C)
+        s_of = color_similarity(Po, Co)
+        bias = torch.where(s_of > 0, s_game / s_of.clamp(min=1e-6), torch.ones_like(s_of))
+        bias = torch.nan_to_num(bias, nan=1.0).clamp(0.0, 1.0)
+        bias = torch.where((x > 0) != (y > 0), torch.ones_like(bias), bias)
+        out = torch.lerp(c_of, out, bias)
+    return sanitize_values(out), holes, bias
+
+
+def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0):
+    """FSR 3 colour inpainting: hole pixels take pyramid_inpaint mode 'blend' of the valid
+    interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W)."""
+    out, _ = pyramid_inpaint(color, (~holes).to(torch.float32), holes, mode="blend", decay=decay)
+    return out

@@ -1,0 +1,230 @@
+"""FSR 3 frame interpolation stages (pipelines/fsr3-interp.toml): thin wrappers over
+fgcli.ops.fsr3 and fgcli.ops.pyramid, one per pass of the FidelityFX document."""
+from __future__ import annotations
+
+from fgcli.stages.base import Option, Stage, register
+
+
+def _no_motion(facts):
+    return not facts["any_motion"]
+
+
+@register
+class FSR3Depth(Stage):
+    name = "fsr3_depth"
+    help = ("FSR 3 depth reconstruction: frame 1's dilated depth splatted over the bilinear "
+            "footprint of p + mv (previous frame) and p + (1 - alpha) mv (interpolated frame), "
+            "atomic min; vectors < 0.1 px zeroed.")
+    inputs = ("depth1_d", "mv1_d", "alpha")
+    outputs = ("depth_prev_r", "depth_t")
+    options = (Option("short_mv", "float", 0.1, "vectors shorter than this (px) are zeroed",
+                      range=(0.0, 10.0)),)
+
+    def needed(self, ctx, facts):
+        if _no_motion(facts):
+            return False, "no motion: both reconstructions are the dilated depth"
+        return True, ""
+
+    def skip(self, ctx):
+        from fgcli.ops import sanitize_depth
+
+        d = sanitize_depth(ctx["depth1_d"])
+        return {"depth_prev_r": d, "depth_t": d}
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import reconstruct_depths
+
+        dp, dt = reconstruct_depths(ctx["depth1_d"], ctx["mv1_d"], ctx["alpha"], self.short_mv)
+        return {"depth_prev_r": dp, "depth_t": dt}
+
+
+@register
+class FSR3GameField(Stage):
+    name = "fsr3_game_field"
+    help = ("FSR 3 game-MV field of the interpolated frame: 16-bit priority (primary flag, "
+            "10-bit depth priority, 5-bit luminance agreement) | half-float component, atomic "
+            "max into the bilinear footprint of p + (1 - alpha) mv; secondary entries stepping "
+            "back toward p.")
+    inputs = ("color0", "color1", "depth1_d", "mv1_d", "alpha")
+    outputs = ("game_field",)
+    options = (Option("secondary", "bool", True, "write secondary vectors"),
+               Option("max_secondary", "int", 64, "longest secondary walk (px)", range=(0, 4096)))
+
+    def needed(self, ctx, facts):
+        if _no_motion(facts):
+            return False, "no motion: every texel holds its own zero vector"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        from fgcli.ops.fsr3 import pack_entries
+
+        d = ctx["depth1_d"]
+        z = torch.zeros(2, *d.shape[-2:], device=d.device)
+        one = torch.ones(1, *d.shape[-2:], dtype=torch.int64, device=d.device)
+        # zero vectors everywhere, all primary (downstream reads vec = 0, valid = True,
+        # exactly what running gives; the priorities only weight hole filling, and there
+        # are no holes)
+        return {"game_field": torch.cat([pack_entries(True, one, one * 0, z[c:c + 1])
+                                         for c in (0, 1)])}
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import depth_priority, vector_field
+
+        hi = depth_priority(ctx["depth1_d"])
+        return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"], hi,
+                                           ctx["alpha"], self.secondary, self.max_secondary)}
+
+
+@register
+class FSR3FieldFill(Stage):
+    name = "fsr3_field_fill"
+    help = ("FSR 3 vector-field inpainting: unwritten texels take the first coarser level of "
+            "the priority-weighted mip pyramid of valid vectors (shared pyramid op).")
+    inputs = ("game_field",)
+    outputs = ("game_mv", "game_holes")
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import fill_vector_field, unpack_vector_field
+
+        vec, prio, valid = unpack_vector_field(ctx["game_field"])
+        if bool(valid.all()):
+            return {"game_mv": vec, "game_holes": ~valid}
+        out, _ = fill_vector_field(vec, prio, valid)
+        return {"game_mv": out, "game_holes": ~valid}
+
+
+@register
+class FSR3OpticalFlow(Stage):
+    name = "fsr3_optical_flow"
+    help = ("FfxOpticalFlow: 8-bit luminance pyramid, 8x8 blocks, SAD search -8..+7 coarse to "
+            "fine, 3x3 vector median, 1/8 resolution (flow=block); or OpenCV DIS flow "
+            "(flow=dis, a stand-in, labelled). Then the optical-flow vector field of the "
+            "interpolated frame (magnitude priority, atomic max, pyramid fill).")
+    inputs = ("color0", "color1", "alpha")
+    outputs = ("of_mv",)
+    options = (
+        Option("flow", "choice", "block", "block = FfxOpticalFlow-style block matching; dis = "
+               "OpenCV DIS (stand-in)", choices=("block", "dis")),
+        Option("levels", "int", 7, "pyramid levels (block)", range=(1, 12)),
+        Option("search", "int", 8, "search offsets -search..search-1 per level (block)",
+               range=(1, 32)),
+        Option("median", "bool", True, "3x3 vector-median filter per level (block)"),
+    )
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import (block_flow, dis_flow, fill_vector_field, luma8,
+                                    magnitude_priority, unpack_vector_field,
+                                    upsample_block_flow, vector_field)
+
+        c0, c1 = ctx["color0"], ctx["color1"]
+        l0, l1 = luma8(c0), luma8(c1)
+        h, w = c1.shape[-2:]
+        if self.flow == "dis":
+            f = dis_flow(l0, l1)
+        else:
+            f = upsample_block_flow(block_flow(l0, l1, self.levels, 8, self.search,
+                                               self.median), h, w, 8)
+        field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
+        vec, prio, valid = unpack_vector_field(field)
+        if not bool(valid.all()):
+            vec, _ = fill_vector_field(vec, prio, valid)
+        return {"of_mv": vec}
+
+
+@register
+class FSR3Disocclusion(Stage):
+    name = "fsr3_disocclusion"
+    help = ("FSR 3 disocclusion masks toward the previous and the current frame: bilinear "
+            "depth taps, same surface when Ksep*Kfov*width*min(z)/|dz| >= 1 (Kfov from the "
+            "camera's fov, else fov_default).")
+    inputs = ("depth_t", "depth_prev_r", "depth1_d", "game_mv", "alpha")
+    optional_inputs = ("camera1",)
+    outputs = ("mask_prev", "mask_cur")
+    options = (Option("ksep", "float", 1.37e-5, "minimum-separation constant Ksep",
+                      range=(0.0, 1.0)),
+               Option("fov_default", "float", 60.0, "vertical fov (degrees) when the frame has "
+                      "no camera", range=(1.0, 179.0)))
+
+    def needed(self, ctx, facts):
+        if _no_motion(facts):
+            return False, "no motion: every pixel is the same surface in both frames"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        d = ctx["depth_t"]
+        one = torch.ones(1, *d.shape[-2:], device=d.device)
+        return {"mask_prev": one, "mask_cur": one.clone()}
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import camera_kfov, disocclusion_masks
+
+        d = ctx["depth_t"]
+        cam = ctx.get("camera1")
+        kfov = camera_kfov(None if cam is None else cam.projection, d.shape[-1], d.shape[-2],
+                           self.fov_default)
+        mp, mc = disocclusion_masks(d, ctx["depth_prev_r"], ctx["depth1_d"], ctx["game_mv"],
+                                    ctx["alpha"], kfov, self.ksep)
+        return {"mask_prev": mp, "mask_cur": mc}
+
+
+@register
+class FSR3Interpolate(Stage):
+    name = "fsr3_interpolate"
+    help = ("FSR 3 interpolation: lerp of the game-vector samples by the disocclusion masks, "
+            "the same with optical-flow vectors, mixed by the colour-similarity bias "
+            "clamp(S_game / S_of, 0, 1); both masks 0 -> hole. Also the generated depth and MVs.")
+    inputs = ("color0", "color1", "game_mv", "mask_prev", "mask_cur", "depth_t", "alpha")
+    optional_inputs = ("of_mv", "depth0", "depth1", "prev_time")
+    outputs = ("color", "depth", "mv", "fsr3_holes", "fsr3_bias")
+
+    def run(self, ctx):
+        import torch
+
+        from fgcli.ops import sample_nearest, sanitize_depth, sanitize_mv
+        from fgcli.ops.fsr3 import interpolate_fsr3
+
+        a = ctx["alpha"]
+        v = sanitize_mv(ctx["game_mv"])
+        color, holes, bias = interpolate_fsr3(ctx["color0"], ctx["color1"], v,
+                                              ctx["mask_prev"], ctx["mask_cur"], a,
+                                              ctx.get("of_mv"))
+        depth = sanitize_depth(ctx["depth_t"])
+        if ctx.get("depth0") is not None and bool(torch.isinf(depth).any()):
+            # nothing splatted there (and sky): the nearer of the two sampled depths
+            d0, _ = sample_nearest(sanitize_depth(ctx["depth0"]), v * a)
+            d1, _ = sample_nearest(sanitize_depth(ctx["depth1"]), v * -(1.0 - a))
+            depth = torch.where(torch.isinf(depth), torch.minimum(d0, d1), depth)
+        prev = float(ctx.get("prev_time") or 0.0)
+        # q + alpha v is where the surface was at time 0; toward the previous output time
+        mv = v * (a - prev) if a > prev else v * a
+        return {"color": color, "depth": depth, "mv": mv, "fsr3_holes": holes,
+                "fsr3_bias": bias}
+
+
+@register
+class FSR3Inpaint(Stage):
+    name = "fsr3_inpaint"
+    help = ("FSR 3 colour inpainting: hole pixels take the (1 - i/10)^3-weighted blend of the "
+            "coarser levels of the weighted mip pyramid of the valid interpolated colour "
+            "(shared pyramid op).")
+    inputs = ("color", "fsr3_holes")
+    outputs = ("color",)
+    options = (Option("decay", "float", 10.0, "level-weight falloff: (1 - i/decay)^3",
+                      range=(1.0, 64.0)),)
+
+    def needed(self, ctx, facts):
+        if not bool(ctx["fsr3_holes"].any()):
+            return False, "no holes"
+        return True, ""
+
+    def skip(self, ctx):
+        return {"color": ctx["color"]}
+
+    def run(self, ctx):
+        from fgcli.ops.fsr3 import inpaint_color
+
+        return {"color": inpaint_color(ctx["color"], ctx["fsr3_holes"], self.decay)}

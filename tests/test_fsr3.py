@@ -1,0 +1,338 @@
+"""fsr3-interp (issue 10): each op (shapes, known answer, hard cases), the shared pyramid
+inpainting op, the camera-cut splice, the loader's data-flow check, and the poor-vector
+scene where the optical-flow bias must carry the result."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from fgcli import pipeline as pl
+from fgcli.cli import cli
+from fgcli.errors import UsageError
+from fgcli.frame import Frame
+from fgcli.io.frames import read_frame, write_frame
+from fgcli.io.reader import SequenceReader
+from fgcli.ops import fsr3
+from fgcli.ops.pyramid import pyramid_inpaint, weighted_pyramid
+from fgcli.runner import make_ctx
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+INF = math.inf
+
+
+def _texture(h, w, seed=0):
+    """Multi-scale noise (structure at every pyramid level), values in [0, 1]."""
+    g = torch.Generator().manual_seed(seed)
+    acc = torch.zeros(3, h, w)
+    for s in (32, 16, 8, 4, 1):
+        base = torch.rand(3, -(-h // s), -(-w // s), generator=g)
+        acc += torch.nn.functional.interpolate(base[None], size=(h, w), mode="bilinear",
+                                               align_corners=False)[0]
+    return acc / 5
+
+
+# ----------------------------------------------------------------------------- pyramid
+
+def test_pyramid_shapes_and_constant_fill():
+    v = torch.full((3, 13, 21), 0.25)
+    w = torch.ones(1, 13, 21)
+    w[:, 3:9, 5:15] = 0
+    lev = weighted_pyramid(v, w)
+    assert lev[0].shape == (4, 13, 21) and lev[-1].shape[-2:] == (1, 1)
+    assert [tuple(t.shape[-2:]) for t in lev[:3]] == [(13, 21), (7, 11), (4, 6)]
+    for mode in ("blend", "first"):
+        out, filled = pyramid_inpaint(v.masked_fill(w == 0, 99.0), w, mode=mode)
+        assert torch.allclose(out, v, atol=1e-6)  # holes never leak into the average
+        assert filled.sum() == 6 * 10
+
+
+def test_pyramid_known_answer_and_hard_cases():
+    # left half 0, right half 1, a hole in the middle column takes something in between
+    v = torch.zeros(1, 8, 8)
+    v[:, :, 4:] = 1.0
+    w = torch.ones(1, 8, 8)
+    w[:, :, 3:5] = 0
+    out, _ = pyramid_inpaint(v, w, mode="first")
+    assert 0.0 < out[0, 4, 3] < out[0, 4, 4] < 1.0
+    # no data at all: zeros, nothing filled; 1x1; NaN/Inf values
+    out, filled = pyramid_inpaint(torch.ones(2, 5, 3), torch.zeros(1, 5, 3))
+    assert not out.any() and not filled.any()
+    out, filled = pyramid_inpaint(torch.ones(2, 1, 1), torch.zeros(1, 1, 1))
+    assert out.shape == (2, 1, 1) and not filled.any()
+    bad = torch.tensor([[[float("nan"), INF], [1.0, -INF]]])
+    out, _ = pyramid_inpaint(bad, torch.tensor([[[0.0, 1.0], [1.0, float("nan")]]]))
+    assert torch.isfinite(out).all()
+    with pytest.raises(ValueError):
+        pyramid_inpaint(torch.ones(3, 4, 4), torch.ones(1, 4, 5))
+    with pytest.raises(ValueError):
+        pyramid_inpaint(torch.ones(3, 4, 4), torch.ones(1, 4, 4), mode="nope")
+
+
+# ----------------------------------------------------------------------------- depth
+
+def test_reconstruct_depths_known_shift_and_zero_motion():
+    d = torch.full((1, 6, 9), 10.0)
+    d[0, 2, 2] = 1.0
+    mv = torch.zeros(2, 6, 9)
+    mv[0, 2, 2] = 4.0  # that surface was 4 px to the right in frame 0
+    prev, mid = fsr3.reconstruct_depths(d, mv, 0.5)
+    assert prev.shape == mid.shape == (1, 6, 9)
+    assert prev[0, 2, 6] == 1.0 and mid[0, 2, 4] == 1.0  # atomic min: nearest wins
+    assert prev[0, 2, 2] == INF  # nothing landed where it left (the bilinear footprint only)
+    p0, m0 = fsr3.reconstruct_depths(d, torch.full((2, 6, 9), 0.05), 0.3)  # < 0.1 px: zeroed
+    assert torch.equal(p0, d) and torch.equal(m0, d)
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (1, 7), (5, 1), (7, 5)])
+def test_reconstruct_depths_hard_cases(h, w):
+    for d in (torch.zeros(1, h, w), torch.full((1, h, w), INF),
+              torch.full((1, h, w), float("nan"))):
+        for mv in (torch.full((2, h, w), 1e7), torch.full((2, h, w), float("nan")),
+                   torch.zeros(2, h, w)):
+            a, b = fsr3.reconstruct_depths(d, mv, 1.0)
+            assert not torch.isnan(a).any() and not torch.isnan(b).any()
+            assert (a >= 0).all()
+
+
+# ----------------------------------------------------------------------------- vector field
+
+def test_priorities_and_packing_roundtrip():
+    hi = fsr3.depth_priority(torch.tensor([[[0.0, 1.0, 100.0, INF, float("nan")]]]))
+    assert hi[0, 0, 0] == 1023 and hi[0, 0, 3] == 1 and hi[0, 0, 4] == 1
+    assert hi[0, 0, 1] > hi[0, 0, 2]  # near is better
+    assert fsr3.agreement_priority(torch.tensor(1.0), torch.tensor(1.0)) == 31
+    assert fsr3.agreement_priority(torch.tensor(0.0), torch.tensor(10.0)) == 0
+    comp = torch.tensor([[[-3.5, 0.0, 12.25, 1e9]]])
+    packed = torch.cat([fsr3.pack_entries(True, torch.full_like(comp, 7, dtype=torch.int64),
+                                          torch.full_like(comp, 3, dtype=torch.int64), comp)] * 2)
+    vec, prio, valid = fsr3.unpack_vector_field(packed)
+    assert valid.all() and (prio == (1 << 15 | 7 << 5 | 3)).all()
+    assert vec[0, 0].tolist() == [-3.5, 0.0, 12.25, 65504.0]
+    # primary beats secondary beats nothing, whatever the depth priority
+    a = fsr3.pack_entries(True, torch.tensor(1), torch.tensor(0), torch.tensor(1.0))
+    b = fsr3.pack_entries(False, torch.tensor(1023), torch.tensor(31), torch.tensor(1.0))
+    assert a > b > 0
+
+
+def test_vector_field_uniform_motion_and_secondary():
+    h, w = 12, 16
+    c = _texture(h, w)
+    mv = torch.zeros(2, h, w)
+    mv[0] = 4.0
+    hi = fsr3.depth_priority(torch.full((1, h, w), 5.0))
+    field = fsr3.vector_field(c, c, mv, hi, 0.5)
+    vec, prio, valid = fsr3.unpack_vector_field(field)
+    assert vec.shape == (2, h, w)
+    # every pixel moved 2 px right at t = 0.5: columns 2.. are written with the vector
+    assert valid[:, :, 2:].all() and (vec[0, :, 2:] == 4.0).all()
+    # a small object moving over static ground: secondary entries fill behind it
+    mv2 = torch.zeros(2, h, w)
+    mv2[0, 4:6, 4:6] = -8.0
+    d = torch.full((1, h, w), 10.0)
+    d[:, 4:6, 4:6] = 1.0
+    f1 = fsr3.vector_field(c, c, mv2, fsr3.depth_priority(d), 0.5, secondary=True)
+    f0 = fsr3.vector_field(c, c, mv2, fsr3.depth_priority(d), 0.5, secondary=False)
+    assert (f1 >= f0).all() and (f1 != f0).any()
+    filled, _ = fsr3.fill_vector_field(*fsr3.unpack_vector_field(f0))
+    assert torch.isfinite(filled).all()
+
+
+# ----------------------------------------------------------------------------- optical flow
+
+def test_block_flow_recovers_a_shift():
+    h, w = 64, 96
+    c0 = _texture(h + 16, w + 16, 3)
+    img0 = c0[:, 8:8 + h, 8:8 + w]
+    img1 = c0[:, 8 + 2:8 + 2 + h, 8 - 5:8 - 5 + w]  # frame 1 at x shows frame 0 at x - 5, y + 2
+    f = fsr3.block_flow(fsr3.luma8(img0), fsr3.luma8(img1))
+    assert f.shape == (2, 8, 12)
+    inner = f[:, 1:-1, 1:-1]
+    assert (inner[0] == -5).float().mean() > 0.9 and (inner[1] == 2).float().mean() > 0.9
+    # identical frames: zero flow (ties go to zero offset); tiny and flat images
+    assert not fsr3.block_flow(fsr3.luma8(img0), fsr3.luma8(img0)).any()
+    assert fsr3.block_flow(torch.zeros(1, 1, 1), torch.zeros(1, 1, 1)).shape == (2, 1, 1)
+    up = fsr3.upsample_block_flow(f, h, w)
+    assert up.shape == (2, h, w)
+
+
+def test_vector_median_removes_an_outlier():
+    f = torch.ones(2, 5, 5)
+    f[:, 2, 2] = 40.0
+    out = fsr3._vector_median3(f)
+    assert torch.equal(out, torch.ones(2, 5, 5))
+
+
+def test_dis_flow_shapes_and_shift():
+    h, w = 64, 96
+    c0 = _texture(h + 16, w + 16, 4)
+    img0 = c0[:, 8:8 + h, 8:8 + w]
+    img1 = c0[:, 8:8 + h, 8 - 3:8 - 3 + w]
+    f = fsr3.dis_flow(fsr3.luma8(img0), fsr3.luma8(img1))
+    assert f.shape == (2, h, w)
+    assert abs(float(f[0, 16:-16, 16:-16].median()) + 3.0) < 0.5
+    assert fsr3.dis_flow(torch.zeros(1, 1, 3), torch.zeros(1, 1, 3)).shape == (2, 1, 3)
+
+
+# ----------------------------------------------------------------------------- masks, interp
+
+def test_disocclusion_masks_known_answer():
+    h, w = 8, 12
+    d = torch.full((1, h, w), 10.0)
+    z = torch.zeros(2, h, w)
+    mp, mc = fsr3.disocclusion_masks(d, d, d, z, 0.5, 1.4)
+    assert mp.shape == mc.shape == (1, h, w) and mp.all() and mc.all()
+    # the previous frame had a nearer surface where this pixel's surface now shows
+    dp = d.clone()
+    dp[:, 3, 3] = 1.0
+    mp, mc = fsr3.disocclusion_masks(d, dp, d, z, 0.5, 1.4)
+    assert mp[0, 3, 3] == 0 and mc[0, 3, 3] == 1
+    # farther at the source is not an occluder (one-sided); sky vs sky is the same surface
+    far = d.clone()
+    far[:, 3, 3] = 100.0
+    assert fsr3.disocclusion_masks(d, far, d, z)[0].all()
+    sky = torch.full((1, h, w), INF)
+    assert fsr3.disocclusion_masks(sky, sky, sky, z)[0].all()
+    assert fsr3.camera_kfov(None, 16, 9, 60.0) > 1.0
+
+
+def test_interpolate_zero_motion_is_exact_and_bias_prefers_the_better_pair():
+    h, w = 10, 14
+    c = _texture(h, w)
+    z = torch.zeros(2, h, w)
+    one = torch.ones(1, h, w)
+    out, holes, bias = fsr3.interpolate_fsr3(c, c, z, one, one, 0.37, of_vec=z)
+    assert torch.equal(out, c) and not holes.any() and (bias == 1).all()
+    # content moved 4 px left; the game vectors are wrong (zero), the flow is right
+    big = _texture(h, w + 8, 5)
+    c0, c1 = big[:, :, 4:4 + w], big[:, :, 0:w]  # frame 1 at x shows frame 0 at x - 4 ...
+    of = torch.zeros(2, h, w)
+    of[0] = -4.0
+    gt = big[:, :, 2:2 + w]
+    out, _, bias = fsr3.interpolate_fsr3(c0, c1, z, one, one, 0.5, of_vec=of)
+    game_only, _, _ = fsr3.interpolate_fsr3(c0, c1, z, one, one, 0.5)
+    inner = (slice(None), slice(None), slice(3, -3))
+    # bias = clamp(S_game / S_of, 0, 1) leans toward the flow pair by how much better it
+    # matches (RGB-direction similarity: a partial mix on this low-saturation texture)
+    assert (out - gt)[inner].abs().mean() < 0.95 * (game_only - gt)[inner].abs().mean()
+    assert bias.mean() < 0.99
+    # both masks 0: a hole; similarity known answers
+    zero = torch.zeros(1, h, w)
+    assert fsr3.interpolate_fsr3(c, c, z, zero, zero, 0.5)[1].all()
+    s = fsr3.color_similarity(torch.tensor([[[1.0]], [[0.0]], [[0.0]]]),
+                              torch.tensor([[[0.0]], [[1.0]], [[0.0]]]))
+    assert s.item() == 0.0
+    assert fsr3.color_similarity(torch.zeros(3, 1, 1), torch.zeros(3, 1, 1)).item() == 1.0
+
+
+def test_inpaint_color_fills_holes_only():
+    c = _texture(9, 11)
+    holes = torch.zeros(1, 9, 11, dtype=torch.bool)
+    holes[:, 4, 5] = True
+    out = fsr3.inpaint_color(c, holes)
+    assert torch.equal(out[:, ~holes[0]], c[:, ~holes[0]])
+    assert torch.isfinite(out).all() and not torch.equal(out[:, 4, 5], c[:, 4, 5])
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+def test_variants_and_flow_description():
+    p = pl.load("fsr3-interp:optical_flow=off")
+    assert "optical_flow" not in [s.id for s, _ in p.build("interp")]
+    pl.load("fsr3-interp:flow=dis").build("interp")
+    d = pl.describe(pl.load("fsr3-interp"))
+    rows = {r["id"]: dict(r["inputs"]) for r in d["flow"]["interp"]}
+    assert rows["fsr3_interpolate"]["game_mv"] == "fsr3_field_fill"
+    assert rows["fsr3_interpolate"]["of_mv"] == "optical_flow"
+    r = CliRunner().invoke(cli, ["describe", "fsr3-interp"])
+    assert r.exit_code == 0 and "data flow (interp)" in r.output
+
+
+def test_loader_rejects_a_broken_data_flow(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "bad"\nmodes = ["interp"]\n\n[[stage]]\nuse = "dilate"\n\n'
+                   '[[stage]]\nuse = "fsr3_field_fill"\n\n[[stage]]\nuse = "crossfade"\n')
+    with pytest.raises(UsageError) as e:
+        pl.load(str(bad))
+    msg = str(e.value)
+    assert "bad.toml:7" in msg and "fsr3_field_fill" in msg and "game_field" in msg
+    # a stage switched off by a variant is caught too (its consumer loses its input)
+    with pytest.raises(UsageError, match="depth1_d"):
+        pl.load("fsr3-interp:dilate=off")
+    nothing = tmp_path / "nothing.toml"
+    nothing.write_text('name = "nothing"\nmodes = ["interp"]\n\n[[stage]]\nuse = "dilate"\n')
+    with pytest.raises(UsageError, match="produces no color"):
+        pl.load(str(nothing))
+
+
+def test_every_bundled_pipeline_passes_the_flow_check():
+    for name in pl.available():
+        p = pl.load(name)
+        for m in p.modes:
+            pl.check_flow(p, m, p.build(m))
+
+
+def _frames(scene, n):
+    r = SequenceReader(os.path.join(ROOT, "sample_data", scene, "input"))
+    return [r.read(k) for k in r.numbers[:n]]
+
+
+def test_camera_cut_splice_is_never_blended(tmp_path):
+    a = _frames("orbit", 2)
+    b = _frames("throw", 2)
+    seq = tmp_path / "splice"
+    os.makedirs(seq)
+    for i, f in enumerate(a + b):
+        write_frame(str(seq / f"s.{i:04d}.exr"),
+                    Frame(number=i, color=f.color, depth=f.depth, mv=f.mv, camera=f.camera))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["interpolate", str(seq), str(out), "--pipeline", "fsr3-interp",
+                                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    run = json.loads((out / "fgen-run.json").read_text())
+    cut_frames = {s["frame"] for s in run["skipped_stages"] if "scene cut" in s["why"]}
+    assert cut_frames == {"3"}  # between input 1 (orbit) and 2 (throw)
+    if "scene_cuts" in run:
+        assert run["scene_cuts"]["cuts"] in (["3"], [3])
+    got = read_frame(str(out / "s.0003.exr"), 3)
+    assert torch.equal(got.color, a[1].color.half().float()) or torch.equal(
+        got.color, b[0].color.half().float())
+    # away from the cut the frames are generated (not copies)
+    g1 = read_frame(str(out / "s.0001.exr"), 1)
+    assert not torch.equal(g1.color, a[0].color.half().float())
+
+
+def test_zero_motion_stages_are_skipped_exactly():
+    f = _frames("shadows", 2)
+    p = pl.load("fsr3-interp")
+    tm = pl.Timings()
+    ctx = pl.run_stages(p.build("interp"), make_ctx(f[0], f[1], 0.5, "interp"), tm, label="1")
+    skipped = {s for _, s, _ in tm.skipped}
+    assert {"fsr3_depth", "fsr3_game_field", "fsr3_disocclusion"} <= skipped
+    assert torch.isfinite(ctx["color"]).all()
+
+
+@pytest.mark.slow
+def test_poor_vectors_scene_flow_bias_carries(tmp_path):
+    """sample_data/scenes/spinner.toml (rendered here, 3 input frames): a fast-spinning
+    ball whose texture scrolls and whose highlight stays with the light; the optical-flow
+    bias must put fsr3-interp above blend and mob-fgsr."""
+    from fgcli.synth import load_scene, render_sequence
+
+    sc = load_scene(os.path.join(ROOT, "sample_data", "scenes", "spinner.toml"), frames=3)
+    render_sequence(sc, str(tmp_path / "in"), gt_dir=str(tmp_path / "gt"), gt_factor=2,
+                    progress=False)
+    js = tmp_path / "r.json"
+    r = CliRunner().invoke(cli, ["eval", str(tmp_path / "in"), "--gt", str(tmp_path / "gt"),
+                                 "--pipeline", "fsr3-interp,mob-fgsr,blend",
+                                 "--variant", "fsr3-interp:optical_flow=off", "--json", str(js),
+                                 "--no-progress", "--no-hdr-flip"])
+    assert r.exit_code == 0, r.output
+    res = json.loads(js.read_text())["pipelines"]
+    f = res["fsr3-interp"]["psnr"]
+    assert f > res["blend"]["psnr"] + 1.0 and f > res["mob-fgsr"]["psnr"] + 1.0
+    assert f > res["fsr3-interp:optical_flow=off"]["psnr"]
