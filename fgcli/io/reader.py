@@ -40,10 +40,10 @@ class SequenceReader:
         first = self.seq.files[self.numbers[0]]
         try:
             self.header0 = exr.read_header(first)
+            self.layout = layouts.resolve(layout, self.header0)
+            self.info = self.layout.describe(self.header0, view)
         except InputError as e:
             raise e.with_frame(self.numbers[0]) from None
-        self.layout = layouts.resolve(layout, self.header0)
-        self.info = self.layout.describe(self.header0, view)
         self.view = self.info.view
         self.views = self.info.views
         self.fields = None if fields is None else set(fields)
@@ -98,9 +98,10 @@ class SequenceReader:
         except InputError as e:
             raise e.with_frame(n) from None
         if (header.width, header.height) != (self.width, self.height):
+            # which of the two is wrong cannot be told: name both files
             raise InputError(f"frame size {header.width}x{header.height} differs from the "
                              f"sequence's {self.width}x{self.height} (frame "
-                             f"{self.numbers[0]})", file=path, frame=n)
+                             f"{self.numbers[0]}, {self.header0.path})", file=path, frame=n)
         return header
 
     def read_raw(self, n: int) -> layouts.RawFrame:
@@ -132,7 +133,61 @@ class SequenceReader:
         return raw
 
     def read(self, n: int) -> Frame:
-        return self.read_raw(n).to_frame()
+        return self._span_gap(self.read_raw(n).to_frame())
+
+    # -- vectors that span the selected step ------------------------------------------------
+    def gap_before(self, n: int) -> int:
+        """Frames between n and the selected frame before it (the sequence's step for the
+        first one): the interval frame n's vectors must span."""
+        i = self.numbers.index(n)
+        return n - self.numbers[i - 1] if i > 0 else self.step
+
+    def _span_gap(self, f: Frame) -> Frame:
+        """With --frames selecting every k-th file on disk, a file's vectors span one step on
+        disk, not the gap to the previous selected frame: chain them through the skipped
+        files (b(p) = mv_n(p) + mv_{n-1}(p + mv_n(p)) + ..., as eval --factor does; derived
+        backward vectors likewise). Where a skipped file is missing, the vectors are taken to
+        span the selected gap as they are."""
+        gap, s = self.gap_before(f.number), self.disk_step
+        if f.mv is None or gap <= s or gap % s:
+            return f
+        between = list(range(f.number - s, f.number - gap, -s))
+        first_on_disk = f.number == min(self.all_files)
+        if not first_on_disk and not all(k in self.all_files for k in between):
+            return f
+        from fgcli.ops import chain_mv
+
+        if first_on_disk:  # nothing earlier on disk: constant velocity, as eval --factor
+            mvs = [f.mv * float(gap // s)]
+        else:
+            mvs = [f.mv] + [self._disk_mv(k) for k in between]
+        if not self._chain_noted:
+            self._chain_noted = True
+            note = (f"vectors chained through the {len(between)} file(s) on disk between "
+                    f"selected frames (gap {gap}, files every {s}) so they span the selected "
+                    "interval")
+            self.notes.append(note)
+            print(f"note: {self.folder}: {note}", file=sys.stderr)
+        return f.replace(mv=chain_mv(mvs))
+
+    def _disk_mv(self, k: int):
+        """Backward vectors (torch (2, H, W)) of file k on disk, selected or not."""
+        import torch
+
+        header = self._header(k, self.all_files[k])
+        try:
+            raw = self.layout.read_raw(header, k, view=self.view, fields={"mv"},
+                                       optional={"depth"})
+            if self._derive:
+                self._derive_mv(raw)
+        except InputError as e:
+            raise e.with_frame(k) from None
+        if raw.camera is None and k in self.sidecar:
+            raw.camera = self.sidecar[k]
+        self._fill_sky_vectors(raw)
+        return torch.from_numpy(np.ascontiguousarray(raw.arrays["mv"], dtype=np.float32))
+
+    _chain_noted = False
 
     def _derive_mv(self, raw: layouts.RawFrame) -> None:
         n = raw.number
