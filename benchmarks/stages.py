@@ -1,12 +1,16 @@
 """Per-stage and per-frame cost of every pipeline at 1920x1080 on this machine.
 
     python benchmarks/stages.py [--size 1920x1080] [--repeat 7] [--pipelines mob-fgsr,...]
+                                [--backends torch,numba] [--json FILE]
 
 Frames come from the bundled `blade` scene rendered at the benchmark size (fast movers,
 disocclusions: the expensive case). Prints median ms per stage and per generated frame,
 EXR read/write times separately, and every figure as a ratio to a reference measured in the
-same run (a plain copy of one frame's color+depth+mv tensors), so figures compare across
-machines. Compute excludes I/O. Target: mob-fgsr interpolation < 400 ms per 1080p frame.
+same run (a plain copy of one frame's color+depth+mv tensors, copy_ms), so figures compare
+across machines. Both backends (torch reference ops, numba kernels) run interleaved in one
+run, so their ratio is visible. Compute excludes I/O. Target (issue 9): mob-fgsr
+interpolation <= 50 ms (<= 12x copy_ms) per 1080p frame on 2 cores, extrapolation <= 35 ms,
+the other heuristic pipelines <= 60 ms.
 """
 from __future__ import annotations
 
@@ -40,6 +44,12 @@ def main():
     ap.add_argument("--pipelines", default="all")
     ap.add_argument("--scene", default=os.path.join(ROOT, "sample_data", "scenes", "blade.toml"))
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
+    ap.add_argument("--backends", default="torch,numba",
+                    help="comma-separated backends, timed side by side (the last is the one "
+                         "the JSON's top-level figures report)")
+    ap.add_argument("--json", default=None, metavar="FILE",
+                    help="also write the figures as JSON: {copy_ms, pipelines: {name: {mode: "
+                         "{ms_per_frame, x_copy, stages, backends: {torch: ..., numba: ...}}}}}")
     args = ap.parse_args()
     import torch
 
@@ -87,24 +97,68 @@ def main():
           f"({r_ms / ref:.0f}x ref)\n")
 
     names = list(pl.available()) if args.pipelines == "all" else args.pipelines.split(",")
-    print("| pipeline | mode | ms/frame (compute) | x ref | stages (median ms) |")
-    print("|---|---|---|---|---|")
+    backends = [b.strip() for b in args.backends.split(",") if b.strip()]
+    from fgcli.kernels import resolve
+
+    backends = [resolve(b, "cpu") for b in backends]
+    result = {"size": [W, H], "threads": torch.get_num_threads(), "torch": torch.__version__,
+              "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
+              "pipelines": {}}
+    cols = " | ".join(f"{b} ms/frame | {b} x copy" for b in backends)
+    print(f"| pipeline | mode | {cols} | speed-up | stages (median ms, "
+          f"{' / '.join(backends)}) |")
+    print("|---|---|" + "---|---|" * len(backends) + "---|---|")
     with torch.inference_mode():
         for name in names:
             p = pl.load(name)
             for mode in p.modes:
                 stages = p.build(mode)
-                tm = Timings()
-                for _ in range(args.repeat + 1):
-                    ctx = make_ctx(f0, f1, 0.5, mode)
-                    ctx["prev_time"] = 0.0
-                    ctx["state"] = None
-                    run_stages(stages, ctx, tm)
-                s = tm.summary()
-                st = ", ".join(f"{k} {v:.1f}" for k, v in s["stages"].items())
-                print(f"| {p.label} | {mode} | {s['ms_per_frame']:.1f} | "
-                      f"{s['ms_per_frame'] / ref:.1f} | {st} |")
+                tms = {b: Timings() for b in backends}
+                first = {}
+                try:
+                    # interleaved: torch, numba, torch, ... so load changes hit both alike;
+                    # the first run of each backend (numba: loading/compiling kernels) is
+                    # the warm-up Timings.median drops
+                    for k in range(args.repeat + 1):
+                        for b in backends:
+                            ctx = make_ctx(f0, f1, 0.5, mode)
+                            ctx["prev_time"] = 0.0
+                            ctx["state"] = None
+                            ctx["backend"] = b
+                            t0 = time.perf_counter()
+                            run_stages(stages, ctx, tms[b])
+                            if k == 0:
+                                first[b] = (time.perf_counter() - t0) * 1000.0
+                except Exception as e:  # noqa: BLE001 - a benchmark reports and goes on
+                    print(f"| {p.label} | {mode} | error: {type(e).__name__}: {e} |")
+                    continue
+                summ = {b: tms[b].summary() for b in backends}
+                entry = {}
+                for b in backends:
+                    s = summ[b]
+                    entry[b] = {"ms_per_frame": s["ms_per_frame"],
+                                "x_copy": s["ms_per_frame"] / ref,
+                                "first_call_ms": first[b], "stages": s["stages"]}
+                main_b = backends[-1]
+                result["pipelines"].setdefault(p.label, {})[mode] = {
+                    "ms_per_frame": entry[main_b]["ms_per_frame"],
+                    "x_copy": entry[main_b]["x_copy"], "backend": main_b,
+                    "stages": entry[main_b]["stages"], "backends": entry}
+                figs = " | ".join(f"{entry[b]['ms_per_frame']:.1f} | {entry[b]['x_copy']:.1f}"
+                                  for b in backends)
+                sp = (entry[backends[0]]["ms_per_frame"] / max(entry[main_b]["ms_per_frame"], 1e-9)
+                      if len(backends) > 1 else 1.0)
+                st = ", ".join(f"{k} " + " / ".join(f"{summ[b]['stages'].get(k, 0.0):.1f}"
+                                                    for b in backends)
+                               for k in summ[main_b]["stages"])
+                print(f"| {p.label} | {mode} | {figs} | {sp:.1f}x | {st} |")
                 sys.stdout.flush()
+    if args.json:
+        import json
+
+        with open(args.json, "w") as fh:
+            json.dump(result, fh, indent=1)
+        print(f"\n(JSON: {args.json})")
 
 
 if __name__ == "__main__":

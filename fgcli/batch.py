@@ -32,6 +32,7 @@ class RunTask:
     name: str = ""  # the sequence's name in messages
     scene_cuts: str = "auto"
     cut_threshold: float | None = None
+    backend: str = "auto"  # --backend: auto | torch | numba
 
     def label(self) -> str:
         c = f" chunk {self.chunk[0]}/{self.chunk[1]}" if self.chunk else ""
@@ -118,7 +119,8 @@ def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
                            device=task.device, progress=progress, count=task.count,
                            out_layout=out.layout, half=out.half, compression=out.compression,
                            command=task.command, chunk=task.chunk, on_frame=on_frame,
-                           scene_cuts=task.scene_cuts, cut_threshold=task.cut_threshold)
+                           scene_cuts=task.scene_cuts, cut_threshold=task.cut_threshold,
+                           backend=task.backend)
     summary["task"] = task.label()
     return summary
 
@@ -163,6 +165,7 @@ class EvalTask:
     name: str = ""
     scene_cuts: str = "auto"
     cut_threshold: float | None = None
+    backend: str = "auto"  # --backend: auto | torch | numba
 
     def label(self) -> str:
         return self.name or self.in_dir
@@ -196,6 +199,6 @@ def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:
     res = ev.evaluate(src, pipes, task.mode, progress=progress,
                       device=task.device, hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
                       on_frame=on_frame, scene_cuts=task.scene_cuts,
-                      cut_threshold=task.cut_threshold)
+                      cut_threshold=task.cut_threshold, backend=task.backend)
     res["sequence"] = task.label()
     return res

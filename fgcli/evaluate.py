@@ -254,16 +254,21 @@ def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
 
 def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str = "cpu",
              hdr_flip: bool = True, keep_worst: bool = False, on_frame=None,
-             scene_cuts: str = "auto", cut_threshold: float | None = None) -> dict:
+             scene_cuts: str = "auto", cut_threshold: float | None = None,
+             backend: str = "auto") -> dict:
     """Run every pipeline on every task; returns {"pipelines": {label: {...}}, ...}.
-    on_frame: called with 1 per scored (frame, pipeline) (an executor's progress)."""
+    on_frame: called with 1 per scored (frame, pipeline) (an executor's progress).
+    backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve)."""
     import torch
     from tqdm import tqdm
 
     from fgcli.pipeline import Timings, frame_facts, run_stages
     from fgcli.runner import RunState, check_device, device_sync, make_ctx
 
+    from fgcli.kernels import resolve
+
     check_device(device)
+    backend = resolve(backend, device)
     sync = device_sync(device)
     tasks = make_tasks(src, mode)
     if not tasks:
@@ -304,6 +309,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                 ctx = make_ctx(g0, g1, task.alpha, mode)
                 ctx["prev_time"] = task.prev_time
                 ctx["state"] = states[id(stages)]
+                ctx["backend"] = backend
                 ctx = run_stages(stages, ctx, tm, label=str(task.target), sync=sync,
                                  measure_skips=True, facts=dict(facts))
                 score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip)
@@ -339,6 +345,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
             "scene_cuts": {"mode": scene_cuts, "candidates": cuts,
                            "cuts": [c["frame"] for c in cuts if c["cut"]]},
             "display": "sRGB OETF of clip(linear, 0, 1); HDR-FLIP on linear color",
+            "backend": backend,
             "_worst": worst}
 
 

@@ -254,7 +254,8 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                  count: int = 1, out_layout: str = "fgen", half: bool = True,
                  compression: str = "zip", command: str = "",
                  chunk: tuple[int, int] | None = None, on_frame=None,
-                 scene_cuts: str = "auto", cut_threshold: float | None = None) -> dict:
+                 scene_cuts: str = "auto", cut_threshold: float | None = None,
+                 backend: str = "auto") -> dict:
     """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
     alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
     OUT/fgen-run.json, or OUT/fgen-run.chunk-K-of-N.json for a chunk).
@@ -266,10 +267,15 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     on_frame: called with the number of output frames just finished (progress of an
     executor that drives several runs).
     scene_cuts: "auto" (detect camera cuts, repeat the nearest frame across one) or "off";
-    cut_threshold: the histogram score that makes a cut candidate (default FSR 3's)."""
+    cut_threshold: the histogram score that makes a cut candidate (default FSR 3's).
+    backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve); in every
+    frame's ctx["backend"]."""
     import torch
 
+    from fgcli.kernels import resolve
+
     device = check_device(device)
+    backend = resolve(backend, device)
     stages = pipeline.build(mode)
     plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
     numbers, step, times, m, jobs, copies, mine = (
@@ -329,6 +335,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                 ctx["state"] = state
                 ctx["prev_time"] = float(prev_t)
                 ctx["scene_cuts"] = scene_cuts
+                ctx["backend"] = backend
                 if cut_threshold is not None:
                     ctx["scene_cut_threshold"] = cut_threshold
                 ctx = run_stages(stages, ctx, timings if ji in to_write else None,
@@ -361,7 +368,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
                "scene_cuts": {"mode": scene_cuts, "candidates": timings.cuts,
                               "cuts": [c["frame"] for c in timings.cuts if c["cut"]]},
-               "command": command, "device": device}
+               "command": command, "device": device, "backend": backend}
     name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
     atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))
     return summary

@@ -36,6 +36,7 @@ def common(f):
     f = click.option("--set", "sets", multiple=True, metavar="STAGE.OPTION=VALUE",
                      help="Override a stage option (repeatable).")(f)
     f = click.option("--device", default="cpu", show_default=True, help="cpu or cuda.")(f)
+    f = backend_option(f)
     f = click.option("--no-progress", is_flag=True, help="Hide the progress bar.")(f)
     f = click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
                      help="Also write the run summary (timings, skips) to this JSON file.")(f)
@@ -47,6 +48,14 @@ def common(f):
     f = output_options(f)
     f = input_options(f)
     return f
+
+
+def backend_option(f):
+    return click.option("--backend", type=click.Choice(["auto", "torch", "numba"]),
+                        default="auto", show_default=True,
+                        help="Per-pixel kernels: numba (compiled CPU kernels), torch (the "
+                             "reference ops; the CUDA path); auto = numba on CPU, torch on "
+                             "CUDA.")(f)
 
 
 def scene_cut_options(f):
@@ -98,7 +107,12 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
     from fgcli.batch import RunTask, expand_inputs, run_local
     from fgcli.runner import parse_chunk
 
+    from fgcli.kernels import resolve
+
     check_executor(executor, scheduler, workers, chunk)
+    # --backend (backend_option) is read here, not passed by each command
+    backend = click.get_current_context().params.get("backend") or "auto"
+    resolve(backend, device)  # fail early (numba missing, numba with cuda)
     p = pl.load(pipeline)  # fail early on a bad pipeline or option
     if sets:
         p.with_overrides(list(sets), label=p.label)
@@ -109,7 +123,7 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
                      sets=tuple(sets), device=device, times=tuple(times), emit=emit, count=count,
                      in_kw={k: v for k, v in in_kw.items() if k != "pattern"}, out_kw=out_kw,
                      command=command, chunk=ch, name=name, scene_cuts=scene_cuts,
-                     cut_threshold=cut_threshold)
+                     cut_threshold=cut_threshold, backend=backend)
              for name, folder, pattern, od in seqs]
     if executor == "dask":
         from fgcli.executor import run_dask
@@ -125,7 +139,8 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
         where = task.out_dir + (f" (chunk {summary['chunk']})" if summary.get("chunk") else "")
         click.echo(f"{summary['written']} frames written to {where} "
                    f"({summary['skipped_existing']} already complete); "
-                   f"{t['ms_per_frame']:.1f} ms/frame compute [{stages}], "
+                   f"{t['ms_per_frame']:.1f} ms/frame compute ({summary.get('backend')}) "
+                   f"[{stages}], "
                    f"read {t['io_read_ms']:.1f} ms, write {t['io_write_ms']:.1f} ms per frame",
                    err=True)
         if t["skipped"]:

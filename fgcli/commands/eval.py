@@ -21,13 +21,17 @@ from fgcli.io.options import input_options
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write PNG plots (quality vs time, stage times, worst-frame crops).")
 @click.option("--device", default="cpu", show_default=True)
+@click.option("--backend", type=click.Choice(["auto", "torch", "numba"]), default="auto",
+              show_default=True,
+              help="Per-pixel kernels: numba (compiled CPU kernels), torch (reference ops, "
+                   "the CUDA path); auto = numba on CPU, torch on CUDA.")
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
 @click.option("--no-progress", is_flag=True)
 @executor_options
 @scene_cut_options
 @input_options
 def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
-        no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
+        backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
         **in_kw):
     """Score pipelines against ground truth (DESIGN.md section 4).
 
@@ -52,7 +56,10 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
     from fgcli.commands._generate import check_executor
     from fgcli.errors import UsageError
 
+    from fgcli.kernels import resolve
+
     check_executor(executor, scheduler, workers)
+    resolve(backend, device)  # fail early
     if len(in_dirs) > 1 and gt_dir:
         raise UsageError("--gt takes one input sequence; for several, give folders with "
                          "input/ and gt/ each, or use --factor")
@@ -75,7 +82,7 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
     tasks = [EvalTask(in_dir=d, gt_dir=gt_dir, factor=factor, pipelines=tuple(chosen), mode=mode,
                       in_kw=in_kw, device=device, hdr_flip=not no_hdr_flip,
                       keep_worst=report_dir is not None, name=lab, scene_cuts=scene_cuts,
-                      cut_threshold=cut_threshold)
+                      cut_threshold=cut_threshold, backend=backend)
              for d, lab in zip(in_dirs, labels)]
     srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw) for t in tasks]  # fail early
     if executor == "dask":
@@ -105,7 +112,7 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
             click.echo(f"## {t.label()}")
         click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
                    f"{src.inputs[0]}..{src.inputs[-1]}")
-        click.echo(f"# color: {result['display']}")
+        click.echo(f"# color: {result['display']}; backend: {result.get('backend')}")
         if result["scene_cuts"]["cuts"]:
             click.echo(f"# scene cuts (nearest frame repeated) at frames "
                        f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")

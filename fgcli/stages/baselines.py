@@ -49,15 +49,13 @@ class CrossFade(Stage):
     outputs = ("color", "depth", "mv")
 
     def run(self, ctx):
-        import torch
+        from fgcli.kernels import op
 
-        from fgcli.ops import blend_linear
-
-        from fgcli.ops import sanitize_depth
-
-        return {"color": blend_linear(ctx["color0"], ctx["color1"], ctx["alpha"]),
-                "depth": torch.minimum(sanitize_depth(ctx["depth0"]), sanitize_depth(ctx["depth1"])),
-                "mv": _scaled_mv(ctx)}
+        a = ctx["alpha"]
+        color, depth, mv = op("crossfade", ctx)(
+            ctx["color0"], ctx["color1"], ctx["depth0"], ctx["depth1"], ctx["mv1"], a,
+            a - float(ctx.get("prev_time") or 0.0))  # mv: as _scaled_mv
+        return {"color": color, "depth": depth, "mv": mv}
 
 
 @register
@@ -84,25 +82,24 @@ class MVWarp(Stage):
         return out
 
     def run(self, ctx):
-        from fgcli.ops import (backward_warp, mv_warp_extrap, mv_warp_interp, sample_nearest,
-                               sanitize_mv)
+        from fgcli.kernels import op
 
+        # the reference ops: mv_warp_interp / mv_warp_extrap (colour) and sample_nearest
+        # (depth), composed per source frame as fgcli.kernels.reference.mv_warp
+        mv_warp = op("mv_warp", ctx)
         a, mv1 = ctx["alpha"], ctx["mv1"]
         if ctx["mode"] == "interp":
             if a <= 0.5 and self.vectors == "own" and ctx.get("mv0") is not None:
                 # frame 0's surfaces keep moving as they did: at time a, q shows
                 # frame 0 at q + a * mv0(q)
-                flow = sanitize_mv(ctx["mv0"]) * a
-                color, _ = backward_warp(ctx["color0"], flow, self.filter)
-                depth, _ = sample_nearest(ctx["depth0"], flow)
+                color, depth = mv_warp(ctx["color0"], ctx["depth0"], ctx["mv0"], a,
+                                       self.filter, raw_depth_flow=False)
+            elif a <= 0.5:
+                color, depth = mv_warp(ctx["color0"], ctx["depth0"], mv1, a, self.filter)
             else:
-                color = mv_warp_interp(ctx["color0"], ctx["color1"], mv1, a, self.filter)
-                if a <= 0.5:
-                    depth, _ = sample_nearest(ctx["depth0"], mv1 * a)
-                else:
-                    depth, _ = sample_nearest(ctx["depth1"], mv1 * -(1.0 - a))
+                color, depth = mv_warp(ctx["color1"], ctx["depth1"], mv1, -(1.0 - a),
+                                       self.filter)
         else:
-            color = mv_warp_extrap(ctx["color1"], mv1, a, self.filter)
-            depth, _ = sample_nearest(ctx["depth1"], mv1 * a)
+            color, depth = mv_warp(ctx["color1"], ctx["depth1"], mv1, a, self.filter)
         mv = _scaled_mv(ctx)
         return {"color": color, "depth": depth, "mv": mv}

@@ -1,0 +1,72 @@
+"""End-to-end I/O comparison (issue 9, item 4): `fgen interpolate` (mob-fgsr, x2) against
+the plain serial OpenImageIO floor on the same frames, measured in the same run.
+
+    python benchmarks/io.py IN_DIR [--pipeline mob-fgsr] [--backend auto]
+
+The floor reads each input file in one call, keeps colour/depth/mv, and writes one
+6-channel (half RGB, float Z and mv) zip frame per consecutive pair, serially. Prints both
+wall times and their ratio (target: fgen <= 1.1x the floor). Make a 1080p input with
+`fgen synth` (not committed: big files).
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def plain_oiio(files, out_dir, compression="zip"):
+    import numpy as np
+    import OpenImageIO as oiio
+
+    t0 = time.perf_counter()
+    prev = None
+    for i, path in enumerate(files):
+        inp = oiio.ImageInput.open(path)
+        spec = inp.spec()
+        px = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)  # one call, all channels
+        inp.close()
+        names = list(spec.channelnames)
+        pick = [names.index(c) for c in names if c.split(".")[-1] in ("R", "G", "B", "Z")][:4]
+        cur = px[:, :, pick]
+        if prev is not None:
+            out = np.concatenate([0.5 * (prev[..., :3] + cur[..., :3]), cur[..., 3:4],
+                                  np.zeros(cur.shape[:2] + (2,), np.float32)], axis=2)
+            h, w = out.shape[:2]
+            ospec = oiio.ImageSpec(w, h, 6, oiio.FLOAT)
+            ospec.channelnames = ("R", "G", "B", "Z", "mv.x", "mv.y")
+            ospec.channelformats = (oiio.HALF,) * 3 + (oiio.FLOAT,) * 3
+            ospec.attribute("compression", compression)
+            o = oiio.ImageOutput.create(os.path.join(out_dir, f"p.{i:04d}.exr"))
+            o.open(os.path.join(out_dir, f"p.{i:04d}.exr"), ospec)
+            o.write_image(out)
+            o.close()
+        prev = cur
+    return time.perf_counter() - t0
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("input")
+    ap.add_argument("--pipeline", default="mob-fgsr")
+    ap.add_argument("--backend", default="auto")
+    args = ap.parse_args()
+    files = sorted(glob.glob(os.path.join(args.input, "*.exr")))
+    with tempfile.TemporaryDirectory() as tmp:
+        floor = plain_oiio(files, tmp)
+        out = os.path.join(tmp, "fgen")
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "fgcli", "interpolate", args.input, out,
+                        "--pipeline", args.pipeline, "--backend", args.backend,
+                        "--no-progress"], check=True)
+        fg = time.perf_counter() - t0
+    print(f"{len(files)} input frames: plain serial OIIO {floor:.2f} s, fgen interpolate "
+          f"{fg:.2f} s ({fg / floor:.2f}x; target <= 1.1x)")
+
+
+if __name__ == "__main__":
+    main()

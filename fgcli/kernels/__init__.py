@@ -1,0 +1,65 @@
+"""Compiled CPU kernels (numba) for the per-pixel ops, and the one dispatch point.
+
+The torch functions in fgcli.ops (plus the fused stage compositions in
+fgcli.kernels.reference) are the reference implementation and the CUDA path. With
+``--backend numba`` (the default ``auto`` on CPU) a stage asks ``op(name, ctx)`` for the
+implementation of an op and gets the numba kernel of fgcli.kernels.ops instead; kernels
+fall back to the reference themselves for option combinations they do not implement
+(batched tensors, fill='mean', catmull-rom, ...). Results are bit-identical to the
+reference except where a comment in the kernel says otherwise (tests/test_kernels.py).
+
+Importing this package does not import numba or torch (``fgen --help`` stays fast).
+"""
+from __future__ import annotations
+
+import importlib.util
+
+BACKENDS = ("auto", "torch", "numba")
+
+# ops with a numba implementation in fgcli.kernels.ops (name -> reference module)
+KERNEL_OPS = {
+    "dilate_nearest_depth": "fgcli.ops",
+    "splat_motion": "fgcli.ops",
+    "gap_fill": "fgcli.ops",
+    "fill_extrap_holes": "fgcli.ops",
+    "blend_interp": "fgcli.ops",
+    "blend_eq1": "fgcli.kernels.reference",
+    "warp_frames": "fgcli.kernels.reference",
+    "mv_warp": "fgcli.kernels.reference",
+    "crossfade": "fgcli.kernels.reference",
+}
+
+
+def numba_available() -> bool:
+    return importlib.util.find_spec("numba") is not None
+
+
+def resolve(backend: str | None, device: str = "cpu") -> str:
+    """--backend value -> 'torch' or 'numba'. auto: numba on CPU (when installed), torch on
+    CUDA. numba on a CUDA device is a usage error."""
+    from fgcli.errors import UsageError
+
+    b = (backend or "auto").lower()
+    if b not in BACKENDS:
+        raise UsageError(f"unknown backend '{backend}' ({', '.join(BACKENDS)})")
+    cuda = str(device).startswith("cuda")
+    if b == "auto":
+        return "torch" if cuda or not numba_available() else "numba"
+    if b == "numba":
+        if cuda:
+            raise UsageError("--backend numba runs on the CPU; use --backend torch (or auto) "
+                             "with --device cuda")
+        if not numba_available():
+            raise UsageError("--backend numba: numba is not installed (pip install numba)")
+    return b
+
+
+def op(name: str, ctx: dict | None = None):
+    """The implementation of op `name` for this frame: the numba kernel when
+    ctx['backend'] is 'numba' (as resolved by the runner), else the torch reference."""
+    ref_mod = KERNEL_OPS.get(name, "fgcli.ops")
+    if ctx is not None and ctx.get("backend") == "numba" and name in KERNEL_OPS:
+        from fgcli.kernels import ops as kops
+
+        return getattr(kops, name)
+    return getattr(importlib.import_module(ref_mod), name)

@@ -1,0 +1,79 @@
+"""Per-pixel helpers shared by the kernels: the ops' sanitising rules, element by element
+(the torch ops sanitise whole tensors only when needed; per element the result is the
+same), and float32 bit views. Every helper is inlined into the kernels."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+F32 = np.float32
+INF = np.float32(np.inf)
+MV_MAX = np.float32(1.0e6)  # fgcli.ops._util.MV_MAX
+BIG = np.float32(1.0e30)  # fgcli.ops._util.BIG
+FAR = np.float32(4.0e6)  # sanitize_flow_positions: 4 * MV_MAX
+I64_MAX = np.int64((1 << 63) - 1)
+INLINE = dict(inline="always", cache=True)
+# every kernel: compiled once per process into the on-disk cache, no fastmath (results
+# must stay bit-identical to the torch reference), all cores
+KERNEL = dict(cache=True, parallel=True, fastmath=False, nogil=True)
+
+
+@njit(**INLINE)
+def sdepth(v):
+    """sanitize_depth: NaN -> +inf, <= 0 (incl. -0.0, -inf) -> +0."""
+    if v != v:
+        return INF
+    if v <= F32(0.0):
+        return F32(0.0)
+    return v
+
+
+@njit(**INLINE)
+def smv(v):
+    """sanitize_mv: NaN -> 0, clamp to +-MV_MAX."""
+    if v != v:
+        return F32(0.0)
+    if v > MV_MAX:
+        return MV_MAX
+    if v < -MV_MAX:
+        return -MV_MAX
+    return v
+
+
+@njit(**INLINE)
+def sval(v):
+    """sanitize_values: NaN -> 0, +-inf -> +-1e30."""
+    if v != v:
+        return F32(0.0)
+    if v == INF:
+        return BIG
+    if v == -INF:
+        return -BIG
+    return v
+
+
+@njit(**INLINE)
+def sflow(v):
+    """sanitize_flow_positions: NaN -> -4e6, clamp to +-4e6."""
+    if v != v:
+        return -FAR
+    if v > FAR:
+        return FAR
+    if v < -FAR:
+        return -FAR
+    return v
+
+
+@njit(**INLINE)
+def bits(v):
+    return np.float32(v).view(np.int32)
+
+
+@njit(**INLINE)
+def clampf(v, lo, hi):
+    # torch.clamp_: max(min(v, hi), lo) for finite v
+    if v < lo:
+        return lo
+    if v > hi:
+        return hi
+    return v

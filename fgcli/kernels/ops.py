@@ -1,0 +1,285 @@
+"""Torch-in, torch-out wrappers of the numba kernels, with the signatures of the reference
+ops (fgcli.ops, fgcli.kernels.reference). Inputs are validated as the reference does;
+anything a kernel does not implement (batched or non-CPU tensors, non-default variants)
+runs the reference."""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import torch
+
+from fgcli import ops as R
+from fgcli.kernels import reference as RF
+from fgcli.ops._util import (ALPHA_MAX, aux, check_alpha, check_choice, check_same,
+                             check_tensor)
+
+F32 = np.float32
+_DUMMY3 = np.zeros((1, 1, 1), dtype=np.float32)
+_DUMMY2 = np.zeros((1, 1), dtype=np.float32)
+_DUMMYB = np.zeros((1, 1), dtype=np.bool_)
+
+
+def _a(t: torch.Tensor) -> np.ndarray:
+    """Contiguous numpy view of a CPU tensor (a copy only when not contiguous)."""
+    return t.detach().contiguous().numpy()
+
+
+def _cpu(*ts) -> bool:
+    return all(t is None or (t.device.type == "cpu" and t.dim() == 3) for t in ts)
+
+
+def _empty(*shape, dtype=torch.float32):
+    return torch.empty(shape, dtype=dtype)
+
+
+@functools.lru_cache(maxsize=8)
+def _grid(h: int, w: int):
+    a = aux(h, w, "cpu")
+    return (a["gxn"][0].contiguous().numpy(), a["gyn"][:, 0].contiguous().numpy(),
+            F32(2.0 / w), F32(2.0 / h))
+
+
+@functools.lru_cache(maxsize=1)
+def _table():
+    from fgcli.kernels.blend import encode_table
+
+    return encode_table()
+
+
+# ----------------------------------------------------------------------------- splat
+
+
+def dilate_nearest_depth(depth, mv, radius: int = 1):
+    depth = check_tensor(depth, "depth", 1)
+    mv = check_tensor(mv, "mv", 2)
+    if not _cpu(depth, mv) or not isinstance(radius, int) or isinstance(radius, bool) \
+            or radius < 0:
+        return R.dilate_nearest_depth(depth, mv, radius)
+    check_same(depth, "depth", (mv, "mv"))
+    from fgcli.kernels.splat import dilate_kernel
+
+    h, w = depth.shape[-2:]
+    d, m = _empty(1, h, w), _empty(2, h, w)
+    dilate_kernel(_a(depth)[0], _a(mv), radius, d.numpy()[0], m.numpy())
+    return d, m
+
+
+def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", depth0=None,
+                 depth0_tol_rel=0.05):
+    if not _cpu(depth1, mv1, mv0, depth0):
+        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel)
+    depth1 = check_tensor(depth1, "depth1", 1)
+    mv1 = check_tensor(mv1, "mv1", 2)
+    if mv0 is not None:
+        mv0 = check_tensor(mv0, "mv0", 2)
+    if depth0 is not None:
+        depth0 = check_tensor(depth0, "depth0", 1)
+    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"), (depth0, "depth0"))
+    tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
+    check_choice(model, "model", ("linear", "quadratic"))
+    check_choice(mode, "mode", ("interp", "extrap"))
+    a = check_alpha(alpha, hi=1.0 if mode == "interp" else ALPHA_MAX)
+    h, w = depth1.shape[-2:]
+    if (h + 2) * (w + 2) >= 2 ** 31:
+        raise ValueError("splat_motion: image too large for 32-bit source indices")
+    from fgcli.kernels.splat import splat_kernel
+
+    ca, cb = R.motion_coefficients(a, model if mv0 is not None else "linear", mode)
+    quad = cb != 0.0
+    use_d0 = quad and depth0 is not None
+    to1, to0, dt = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    valid = _empty(1, h, w, dtype=torch.bool)
+    source = _empty(1, h, w, dtype=torch.int32)
+    buf = np.empty((h + 2) * (w + 2), dtype=np.int64)
+    splat_kernel(_a(depth1)[0], _a(mv1), _a(mv0) if quad else _DUMMY3,
+                 _a(depth0)[0] if use_d0 else _DUMMY2, F32(ca), F32(cb), quad, use_d0,
+                 F32(tol), buf, to1.numpy(), to0.numpy(), dt.numpy()[0], valid.numpy()[0],
+                 source.numpy()[0])
+    return R.SplatResult(to1=to1, to0=to0, depth=dt, valid=valid, source=source,
+                         alpha=float(a), mode=mode)
+
+
+# ----------------------------------------------------------------------------- fill
+
+
+def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
+             fallback_depth=None):
+    if not isinstance(result, R.SplatResult) or fill != "nearest" or \
+            not _cpu(result.depth, fallback_mv, fallback_depth):
+        return R.gap_fill(result, depth_threshold_rel, fill, fallback_mv, fallback_depth)
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    if fallback_mv is not None:
+        fallback_mv = check_tensor(fallback_mv, "fallback_mv", 2)
+        check_same(result.depth, "result.depth", (fallback_mv, "fallback_mv"))
+    if fallback_depth is not None:
+        fallback_depth = check_tensor(fallback_depth, "fallback_depth", 1)
+        check_same(result.depth, "result.depth", (fallback_depth, "fallback_depth"))
+    from fgcli.kernels.fill import gap_fill_kernel
+
+    h, w = result.depth.shape[-2:]
+    a = result.alpha
+    c1, c0 = (-(1.0 - a), a) if result.mode == "interp" else (a, 1.0 + a)
+    to1, to0, dep = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    valid, filled, holes = (_empty(1, h, w, dtype=torch.bool) for _ in range(3))
+    source = _empty(1, h, w, dtype=torch.int32)
+    has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
+    gap_fill_kernel(_a(result.to1), _a(result.to0), _a(result.depth)[0], _a(result.valid)[0],
+                    _a(result.source)[0], F32(1.0 - thr),
+                    _a(fallback_mv) if has_fb else _DUMMY3,
+                    _a(fallback_depth)[0] if has_fbd else _DUMMY2, has_fb, has_fbd,
+                    F32(c1), F32(c0), to1.numpy(), to0.numpy(), dep.numpy()[0],
+                    valid.numpy()[0], source.numpy()[0], filled.numpy()[0], holes.numpy()[0])
+    return result.replace(to1=to1, to0=to0, depth=dep, valid=valid, source=source,
+                          filled=filled, holes=holes)
+
+
+def fill_extrap_holes(result, mv1, depth1, depth_threshold_rel=1e-3):
+    if not isinstance(result, R.SplatResult) or result.mode != "extrap" or \
+            not _cpu(result.depth, mv1, depth1):
+        return R.fill_extrap_holes(result, mv1, depth1, depth_threshold_rel)
+    mv1 = check_tensor(mv1, "mv1", 2)
+    depth1 = check_tensor(depth1, "depth1", 1)
+    check_same(mv1, "mv1", (depth1, "depth1"), (result.to1, "to1"))
+    a = check_alpha(result.alpha, hi=ALPHA_MAX)
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    from fgcli.kernels.fill import extrap_fill_kernel
+
+    h, w = depth1.shape[-2:]
+    to1, to0, dep = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    holes = _empty(1, h, w, dtype=torch.bool)
+    extrap_fill_kernel(_a(mv1), _a(depth1)[0], _a(result.to1), _a(result.to0),
+                       _a(result.valid)[0], _a(result.depth)[0], F32(a), F32(1.0 - thr),
+                       to1.numpy(), to0.numpy(), dep.numpy()[0], holes.numpy()[0])
+    return result.replace(to1=to1, to0=to0, depth=dep, holes=holes)
+
+
+# ----------------------------------------------------------------------------- warp
+
+
+def warp_frames(color1, depth1, to1, color0=None, depth0=None, to0=None, mode="bilinear"):
+    if mode != "bilinear" or not _cpu(color1, depth1, to1, color0, depth0, to0):
+        return RF.warp_frames(color1, depth1, to1, color0, depth0, to0, mode)
+    color1 = check_tensor(color1, "img")
+    to1 = check_tensor(to1, "flow", 2)
+    depth1 = check_tensor(depth1, "img")
+    check_same(color1, "img", (to1, "flow"), (depth1, "depth"))
+    two = color0 is not None
+    if two:
+        color0 = check_tensor(color0, "img")
+        to0 = check_tensor(to0, "flow", 2)
+        depth0 = check_tensor(depth0, "img")
+        check_same(color0, "img", (to0, "flow"), (depth0, "depth"))
+    if depth1.shape[0] != 1 or (two and depth0.shape[0] != 1):
+        return RF.warp_frames(color1, depth1, to1, color0, depth0, to0, mode)
+    from fgcli.kernels.warp import warp_kernel
+
+    c, h, w = color1.shape
+    gxn, gyn, kx, ky = _grid(h, w)
+    s1, sd1, v1 = _empty(c, h, w), _empty(1, h, w), _empty(1, h, w, dtype=torch.bool)
+    if two:
+        s0, sd0 = _empty(color0.shape[0], h, w), _empty(1, h, w)
+        v0 = _empty(1, h, w, dtype=torch.bool)
+        c0a, d0a, t0a, s0a, sd0a, v0a = (_a(color0), _a(depth0)[0], _a(to0), s0.numpy(),
+                                         sd0.numpy()[0], v0.numpy()[0])
+    else:
+        s0 = sd0 = v0 = None
+        c0a, d0a, t0a, s0a, sd0a, v0a = _DUMMY3, _DUMMY2, _DUMMY3, _DUMMY3, _DUMMY2, _DUMMYB
+    warp_kernel(_a(color1), _a(depth1)[0], _a(to1), c0a, d0a, t0a, two, gxn, gyn, kx, ky,
+                s1.numpy(), sd1.numpy()[0], v1.numpy()[0], s0a, sd0a, v0a)
+    return s1, v1, sd1, s0, v0, sd0
+
+
+def mv_warp(color, depth, mv, scale, mode="bilinear", raw_depth_flow=True):
+    if mode != "bilinear" or not _cpu(color, depth, mv) or depth.shape[0] != 1:
+        return RF.mv_warp(color, depth, mv, scale, mode, raw_depth_flow)
+    color = check_tensor(color, "img")
+    mv = check_tensor(mv, "mv", 2)
+    depth = check_tensor(depth, "img")
+    check_same(color, "img", (mv, "mv"), (depth, "depth"))
+    from fgcli.kernels.warp import mv_warp_kernel
+
+    c, h, w = color.shape
+    gxn, gyn, kx, ky = _grid(h, w)
+    out, dout = _empty(c, h, w), _empty(1, h, w)
+    mv_warp_kernel(_a(color), _a(depth)[0], _a(mv), F32(scale), bool(raw_depth_flow), gxn, gyn,
+                   kx, ky, out.numpy(), dout.numpy()[0])
+    return out, dout
+
+
+# ----------------------------------------------------------------------------- blend
+
+
+def blend_interp(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target=None,
+                 alpha=0.5, t_d_rel=R.T_D_REL, t_b=R.T_B, return_depth=False, static=None,
+                 static_from=None):
+    """As fgcli.ops.blend_interp; ``static_from`` (a SplatResult) computes the static mask
+    of the mob-fgsr blend stage (valid, |to1| and |to0| < 1e-3) inside the kernel instead of
+    taking ``static``."""
+    args = (c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target)
+    if not _cpu(*args, static) or c0_sample.shape[0] != 3 or \
+            (static_from is not None and not _cpu(static_from.to1)):
+        if static_from is not None:
+            m = static_from
+            static = RF.static_mask(m)
+        kw = {"static": static} if static is not None else {}
+        return R.blend_interp(*args, alpha=alpha, t_d_rel=t_d_rel, t_b=t_b,
+                              return_depth=return_depth, **kw)
+    c0 = check_tensor(c0_sample, "c0_sample")
+    c1 = check_tensor(c1_sample, "c1_sample")
+    d0 = check_tensor(d0_sample, "d0_sample", 1)
+    d1 = check_tensor(d1_sample, "d1_sample", 1)
+    v0 = check_tensor(valid0, "valid0", 1, dtype_kind="bool")
+    v1 = check_tensor(valid1, "valid1", 1, dtype_kind="bool")
+    if d_target is not None:
+        d_target = check_tensor(d_target, "d_target", 1)
+    check_same(c0, "c0_sample", (c1, "c1_sample"), (d0, "d0_sample"), (d1, "d1_sample"),
+               (v0, "valid0"), (v1, "valid1"), (d_target, "d_target"))
+    if c0.shape != c1.shape:
+        raise ValueError(f"c1_sample: shape {tuple(c1.shape)} does not match c0_sample "
+                         f"{tuple(c0.shape)}")
+    a = check_alpha(alpha)
+    t_d = check_alpha(t_d_rel, "t_d_rel", 0.0, None)
+    tb = check_alpha(t_b, "t_b", 0.0, None)
+    from fgcli.kernels.blend import blend_kernel
+
+    h, w = d0.shape[-2:]
+    if static_from is not None:
+        m = static_from
+        mvalid, to1, to0, has_static = _a(m.valid)[0], _a(m.to1), _a(m.to0), True
+    elif static is not None:
+        st = check_tensor(static, "static", 1, dtype_kind="bool")
+        # a given mask: offsets of zero make the in-kernel test reduce to the mask
+        mvalid, has_static = _a(st)[0], True
+        to1 = to0 = np.zeros((2, h, w), dtype=np.float32)
+    else:
+        mvalid, to1, to0, has_static = _DUMMYB, _DUMMY3, _DUMMY3, False
+    table, base = _table()
+    endpoint = 1 if a == 0.0 else 2 if a == 1.0 else 0
+    out_c, out_d = _empty(3, h, w), _empty(1, h, w)
+    blend_kernel(_a(c0), _a(c1), _a(d0)[0], _a(d1)[0], _a(v0)[0], _a(v1)[0],
+                 _a(d_target)[0] if d_target is not None else _DUMMY2, d_target is not None,
+                 mvalid, to1, to0, has_static, F32(a), F32(0.0 if a <= 0.5 else 1.0),
+                 F32(t_d), F32(tb), endpoint, table, base, out_c.numpy(), out_d.numpy()[0])
+    return (out_c, out_d) if return_depth else out_c
+
+
+def blend_eq1(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b, static_from=None):
+    return blend_interp(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b,
+                        return_depth=True, static_from=static_from)
+
+
+def crossfade(color0, color1, depth0, depth1, mv1, alpha, mv_scale):
+    if not _cpu(color0, color1, depth0, depth1, mv1) or color0.shape != color1.shape or \
+            depth0.shape[0] != 1:
+        return RF.crossfade(color0, color1, depth0, depth1, mv1, alpha, mv_scale)
+    a = check_alpha(alpha)
+    from fgcli.kernels.blend import crossfade_kernel
+
+    c, h, w = color0.shape
+    out_c, out_d, out_mv = _empty(c, h, w), _empty(1, h, w), _empty(2, h, w)
+    crossfade_kernel(_a(check_tensor(color0, "c0")), _a(check_tensor(color1, "c1")),
+                     _a(check_tensor(depth0, "depth0", 1))[0],
+                     _a(check_tensor(depth1, "depth1", 1))[0], _a(check_tensor(mv1, "mv1", 2)),
+                     F32(a), F32(mv_scale), out_c.numpy(), out_d.numpy()[0], out_mv.numpy())
+    return out_c, out_d, out_mv

@@ -1,0 +1,336 @@
+"""numba kernels (fgcli.kernels) against their torch reference (fgcli.ops and
+fgcli.kernels.reference): random inputs, the DESIGN.md section 5 hard cases, whole
+pipelines with --backend numba vs torch, the dispatch, and the CLI switch.
+
+Exactness. The kernels repeat the reference's float32 operations one by one, with a fused
+multiply-add exactly where torch's vectorised CPU kernels use one (add(alpha=), lerp,
+grid_sample's unnormalise and weighted sum), so on a torch build whose kernels use FMA
+(ATen CPU capability AVX2 or AVX512: every x86-64 machine of the last decade, and CI's
+ATEN_CPU_CAPABILITY=avx2 rerun) every output is bit-identical. With ATEN_CPU_CAPABILITY=
+default torch's scalar kernels round the product separately: outputs then agree within
+float32 rounding (rtol/atol 1e-5 on values; a rounding step at a pixel-centre boundary can
+move a splat target by one pixel, so up to 1 % of the elements may differ there).
+The one documented inexact spot: the blend's brightness difference uses a table for
+x^(1/2.4) where torch uses Sleef exp/log (both within ~1e-7), so a pixel whose B lies
+within 1e-5 of t_b may pick the other case of Eq. 1; such pixels are excluded.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+pytest.importorskip("numba")
+
+from fgcli import ops as R  # noqa: E402
+from fgcli.kernels import op, reference as RF, resolve  # noqa: E402
+from fgcli.kernels import ops as K  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXACT = torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX")
+INF, NAN = float("inf"), float("nan")
+
+
+def same(name, a, b, loose_frac=0.01):
+    """Bit-identical (NaN == NaN) on FMA builds, else within float32 rounding."""
+    if a is None or b is None:
+        assert a is None and b is None, name
+        return
+    assert a.shape == b.shape and a.dtype == b.dtype, (name, a.shape, b.shape, a.dtype, b.dtype)
+    if a.dtype.is_floating_point:
+        eq = (a == b) | (a.isnan() & b.isnan())
+    else:
+        eq = a == b
+    if EXACT or bool(eq.all()):
+        assert bool(eq.all()), f"{name}: {int((~eq).sum())} of {eq.numel()} differ"
+        return
+    if a.dtype.is_floating_point:
+        eq |= torch.isclose(a, b, rtol=1e-5, atol=1e-5)
+    assert float((~eq).float().mean()) <= loose_frac, name
+
+
+def same_result(name, a, b):
+    if isinstance(a, R.SplatResult):
+        for f in ("to1", "to0", "depth", "valid", "source", "filled", "holes"):
+            same(f"{name}.{f}", getattr(a, f), getattr(b, f))
+        assert (a.alpha, a.mode) == (b.alpha, b.mode)
+    elif isinstance(a, tuple):
+        for i, (x, y) in enumerate(zip(a, b)):
+            same(f"{name}[{i}]", x, y)
+    else:
+        same(name, a, b)
+
+
+# ----------------------------------------------------------------------------- inputs
+
+def random_frames(h, w, seed=0, mv_scale=4.0):
+    g = torch.Generator().manual_seed(seed)
+    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    d1, d0 = r(1, h, w) * 50 + 1, r(1, h, w) * 50 + 1
+    d1[:, : max(1, h // 5)] = INF
+    d0[:, : max(1, h // 6)] = INF
+    mv1 = torch.randn(2, h, w, generator=g) * mv_scale
+    mv0 = torch.randn(2, h, w, generator=g) * mv_scale
+    return {"c0": r(3, h, w) * 2, "c1": r(3, h, w) * 2, "d0": d0, "d1": d1, "mv0": mv0,
+            "mv1": mv1}
+
+
+def hard_cases():
+    """DESIGN.md section 5: (name, frames)."""
+    out = [("random 37x53", random_frames(37, 53)), ("1x1", random_frames(1, 1, 1)),
+           ("1xN", random_frames(1, 17, 2)), ("Nx1", random_frames(13, 1, 3)),
+           ("odd 7x13", random_frames(7, 13, 4)), ("fast 24x40", random_frames(24, 40, 5, 30.0))]
+    f = random_frames(16, 24, 6)
+    f["mv0"].zero_()
+    f["mv1"].zero_()
+    out.append(("zero motion", f))
+    f = random_frames(16, 24, 7)
+    f["d1"][0, ::3, ::2] = 0.0
+    f["d1"][0, 1::4] = -3.0
+    f["d1"][0, 2, :5] = NAN
+    f["d0"][0, ::2, ::3] = 0.0
+    f["d0"][0, 3, :] = NAN
+    out.append(("depth 0 / negative / NaN / inf", f))
+    f = random_frames(16, 24, 8)
+    f["mv1"][0, :4] = 1e9
+    f["mv1"][1, 4:8] = -INF
+    f["mv1"][0, 8:10] = NAN
+    f["mv0"][1, :, :6] = INF
+    f["mv0"][0, 10:] = 3e7
+    out.append(("huge / inf / NaN vectors", f))
+    f = random_frames(15, 21, 9)
+    yy, xx = torch.meshgrid(torch.arange(15.0), torch.arange(21.0), indexing="ij")
+    f["mv1"] = torch.stack([10.0 - xx, 7.0 - yy])  # every pixel lands on (10, 7)
+    f["mv0"] = f["mv1"].clone()
+    f["d1"] = torch.full((1, 15, 21), 5.0)  # and all at the same depth: index ties
+    out.append(("all pixels into one", f))
+    f = random_frames(16, 24, 10)
+    f["c0"][0] = 65504.0
+    f["c1"][1, ::2] = 65504.0
+    f["c0"][2, 1::2] = 1e-7
+    f["c1"][:, 3, :4] = NAN
+    f["c0"][:, 5, :3] = INF
+    f["c1"][:, 6, 2:6] = -INF
+    out.append(("HDR / NaN / inf colour", f))
+    return out
+
+
+CASES = hard_cases()
+IDS = [c[0] for c in CASES]
+
+
+# ----------------------------------------------------------------------------- per kernel
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_dilate(name, f):
+    for r in (0, 1, 2):
+        same_result(f"dilate r{r}", K.dilate_nearest_depth(f["d1"], f["mv1"], r),
+                    R.dilate_nearest_depth(f["d1"], f["mv1"], r))
+
+
+SPLATS = [dict(model="quadratic", mode="interp", alpha=0.37),
+          dict(model="quadratic", mode="interp", alpha=0.5, depth0=True),
+          dict(model="linear", mode="interp", alpha=0.0),
+          dict(model="quadratic", mode="interp", alpha=1.0),
+          dict(model="linear", mode="extrap", alpha=0.5),
+          dict(model="quadratic", mode="extrap", alpha=2.5),
+          dict(model="quadratic", mode="interp", alpha=0.3, no_mv0=True)]
+
+
+def _splats(f):
+    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
+    for kw in SPLATS:
+        kw = dict(kw)
+        a = kw.pop("alpha")
+        d0 = f["d0"] if kw.pop("depth0", False) else None
+        mv0 = None if kw.pop("no_mv0", False) else f["mv0"]
+        yield (f"splat {kw} a={a} d0={d0 is not None}", dd, mm, mv0, a, kw, d0)
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_splat_gap_fill_and_extrap_fill(name, f):
+    for label, dd, mm, mv0, a, kw, d0 in _splats(f):
+        rk = K.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
+        rr = R.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
+        same_result(label, rk, rr)
+        for thr in (0.01, 0.0, 1.0):
+            same_result(f"{label} gap_fill {thr}", K.gap_fill(rr, thr),
+                        R.gap_fill(rr, thr))
+        same_result(f"{label} gap_fill fallback", K.gap_fill(rr, 0.01, "nearest", f["mv0"], f["d0"]),
+                    R.gap_fill(rr, 0.01, "nearest", f["mv0"], f["d0"]))
+        same_result(f"{label} gap_fill fallback mv", K.gap_fill(rr, 0.01, "nearest", f["mv1"]),
+                    R.gap_fill(rr, 0.01, "nearest", f["mv1"]))
+        if rr.mode == "extrap":
+            g = R.gap_fill(rr)
+            for thr in (1e-3, 0.5):
+                same_result(f"{label} extrap_fill", K.fill_extrap_holes(g, f["mv1"], dd, thr),
+                            R.fill_extrap_holes(g, f["mv1"], dd, thr))
+
+
+def test_fallbacks_to_the_reference():
+    """Variants without a kernel run the reference (same results by construction)."""
+    f = CASES[0][1]
+    r = R.splat_motion(f["d1"], f["mv1"], f["mv0"], 0.5)
+    same_result("mean fill", K.gap_fill(r, fill="mean"), R.gap_fill(r, fill="mean"))
+    same_result("catmull-rom", K.warp_frames(f["c1"], f["d1"], r.to1, mode="catmull-rom"),
+                RF.warp_frames(f["c1"], f["d1"], r.to1, mode="catmull-rom"))
+    same_result("batched dilate", K.dilate_nearest_depth(f["d1"][None], f["mv1"][None]),
+                R.dilate_nearest_depth(f["d1"][None], f["mv1"][None]))
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_warp_frames(name, f):
+    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
+    r = R.gap_fill(R.splat_motion(dd, mm, f["mv0"], 0.4), fallback_mv=f["mv0"],
+                   fallback_depth=f["d0"])
+    same_result("warp two", K.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0),
+                RF.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0))
+    # raw, unsanitised offsets (NaN, inf, huge) straight from the vectors
+    same_result("warp one, raw flow", K.warp_frames(f["c1"], f["d1"], f["mv1"]),
+                RF.warp_frames(f["c1"], f["d1"], f["mv1"]))
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_mv_warp(name, f):
+    for mv, scale, raw in ((f["mv1"], 0.37, True), (f["mv1"], -0.63, True),
+                           (f["mv0"], 0.5, False), (f["mv1"], 2.0, True)):
+        same_result(f"mv_warp {scale}", K.mv_warp(f["c1"], f["d1"], mv, scale, raw_depth_flow=raw),
+                    RF.mv_warp(f["c1"], f["d1"], mv, scale, raw_depth_flow=raw))
+
+
+def _near_threshold(c0, c1, t_b):
+    """Pixels whose brightness difference is within 1e-5 of t_b (see the module doc)."""
+    b = R.brightness_difference(R.sanitize_values(c0), R.sanitize_values(c1))
+    return (b - t_b).abs() < 1e-5
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_blend(name, f):
+    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
+    r = R.gap_fill(R.splat_motion(dd, mm, f["mv0"], 0.4), fallback_mv=f["mv0"],
+                   fallback_depth=f["d0"])
+    s1, v1, sd1, s0, v0, sd0 = RF.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0)
+    # some pixels with equal colours, some static (zero offsets)
+    s1[:, ::5] = s0[:, ::5]
+    r.to1[:, 1::4] = 0.0
+    r.to0[:, 1::4] = 0.0
+    skip = _near_threshold(s0, s1, 0.13)
+    for a in (0.0, 0.3, 0.5, 0.7, 1.0):
+        for dt in (None, r.depth):
+            for st in (None, r):
+                ck, dk = K.blend_eq1(s0, s1, sd0, sd1, v0, v1, dt, a, 0.02, 0.13, st)
+                cr, dr = RF.blend_eq1(s0, s1, sd0, sd1, v0, v1, dt, a, 0.02, 0.13, st)
+                same(f"blend a={a} color", ck.masked_fill(skip, 0), cr.masked_fill(skip, 0))
+                same(f"blend a={a} depth", dk.masked_fill(skip, 0), dr.masked_fill(skip, 0))
+    # the op-level signature with a given static mask, and colour only
+    st = RF.static_mask(r)
+    same("blend_interp static", K.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3,
+                                                static=st).masked_fill(skip, 0),
+         R.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3, static=st).masked_fill(skip, 0))
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_crossfade(name, f):
+    for a, ms in ((0.0, 0.0), (0.37, 0.37), (0.5, 0.25), (1.0, 0.5)):
+        same_result(f"crossfade {a}", K.crossfade(f["c0"], f["c1"], f["d0"], f["d1"], f["mv1"], a, ms),
+                    RF.crossfade(f["c0"], f["c1"], f["d0"], f["d1"], f["mv1"], a, ms))
+
+
+def test_outputs_are_finite_on_hard_cases():
+    for name, f in CASES:
+        dd, mm = K.dilate_nearest_depth(f["d1"], f["mv1"])
+        r = K.gap_fill(K.splat_motion(dd, mm, f["mv0"], 0.5), fallback_mv=f["mv0"])
+        s1, v1, sd1, s0, v0, sd0 = K.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0)
+        c, d = K.blend_eq1(s0, s1, sd0, sd1, v0, v1, None, 0.5, 0.02, 0.13, r)
+        assert bool(torch.isfinite(c).all()), name
+        assert not bool(torch.isnan(d).any()), name
+
+
+# ----------------------------------------------------------------------------- pipelines
+
+def _pipeline_outputs(name, mode, backend, f, alpha):
+    from fgcli import pipeline as pl
+    from fgcli.frame import Frame
+    from fgcli.pipeline import run_stages
+    from fgcli.runner import make_ctx
+
+    fr = [Frame(number=n, color=f[f"c{n}"], depth=f[f"d{n}"], mv=f[f"mv{n}"]) for n in (0, 1)]
+    ctx = make_ctx(fr[0], fr[1], alpha, mode)
+    ctx.update(prev_time=0.0, state=None, backend=backend, scene_cuts="off")
+    with torch.inference_mode():
+        out = run_stages(pl.load(name).build(mode), ctx)
+    return out["color"], out["depth"], out["mv"]
+
+
+@pytest.mark.parametrize("name,mode", [("mob-fgsr", "interp"), ("mob-fgsr", "extrap"),
+                                       ("mv-warp", "interp"), ("mv-warp", "extrap"),
+                                       ("blend", "interp"), ("repeat", "interp")])
+def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
+    s0, s1 = tiny_scene(0), tiny_scene(1)
+    f = {f"{k}{i}": torch.from_numpy(s[key]) for i, s in ((0, s0), (1, s1))
+         for k, key in (("c", "color"), ("d", "depth"), ("mv", "mv"))}
+    for alpha in ((0.25, 0.5, 0.75) if mode == "interp" else (0.5,)):
+        c_n, d_n, m_n = _pipeline_outputs(name, mode, "numba", f, alpha)
+        c_t, d_t, m_t = _pipeline_outputs(name, mode, "torch", f, alpha)
+        skip = _near_threshold(c_n, c_t, -1.0)  # nothing: B >= 0 > -1
+        same(f"{name} color", c_n.masked_fill(skip, 0), c_t.masked_fill(skip, 0))
+        same(f"{name} depth", d_n, d_t)
+        same(f"{name} mv", m_n, m_t)
+
+
+# ----------------------------------------------------------------------------- dispatch, CLI
+
+def test_dispatch_and_resolve():
+    from fgcli.errors import UsageError
+
+    assert resolve("auto", "cpu") == "numba" and resolve("auto", "cuda") == "torch"
+    assert resolve("torch", "cpu") == "torch" and resolve("numba", "cpu") == "numba"
+    with pytest.raises(UsageError):
+        resolve("numba", "cuda")
+    with pytest.raises(UsageError):
+        resolve("fast", "cpu")
+    assert op("splat_motion", {"backend": "numba"}) is K.splat_motion
+    assert op("splat_motion", {"backend": "torch"}) is R.splat_motion
+    assert op("splat_motion", {}) is R.splat_motion  # no backend key: the reference
+    assert op("warp_frames", {"backend": "torch"}) is RF.warp_frames
+
+
+def test_help_does_not_import_numba():
+    code = ("import sys\nfrom fgcli.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    rc = e.code\n"
+            "print('NUMBA' if 'numba' in sys.modules else 'NO-NUMBA', rc)\n")
+    for args in (["--help"], ["interpolate", "--help"]):
+        r = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                           cwd=ROOT, timeout=60)
+        assert r.stdout.strip().endswith("NO-NUMBA 0"), (args, r.stdout, r.stderr)
+
+
+def test_interpolate_backend_recorded(tmp_path):
+    import json
+
+    from fgcli.cli import main
+
+    src = os.path.join(ROOT, "sample_data", "blade", "input")
+    outs = {}
+    for b in ("torch", "numba"):
+        out = tmp_path / b
+        with pytest.raises(SystemExit) as e:
+            main(["interpolate", src, str(out), "--frames", "0-4x2", "--backend", b,
+                  "--no-progress"])
+        assert e.value.code in (0, None)
+        run = json.loads((out / "fgen-run.json").read_text())
+        assert run["backend"] == b
+        outs[b] = sorted(p.name for p in out.glob("*.exr"))
+    assert outs["torch"] == outs["numba"] and outs["numba"]
+    if EXACT:
+        from fgcli.io.frames import read_frame
+
+        for name in outs["numba"]:
+            a = read_frame(str(tmp_path / "torch" / name), 1)
+            b = read_frame(str(tmp_path / "numba" / name), 1)
+            for k in ("color", "depth", "mv"):
+                assert torch.equal(getattr(a, k), getattr(b, k)), (name, k)
