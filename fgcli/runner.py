@@ -92,9 +92,23 @@ def warmup_jobs(selected: list[int], history: int | None) -> list[int]:
     return sorted(run)
 
 
+def _usable_mv(f) -> bool:
+    """False when a frame's vectors are flagged invalid everywhere (forward-only files with
+    nothing to derive backward vectors from): no stage may read them as motion."""
+    v = getattr(f, "mv_valid", None)
+    return f.mv is not None and (v is None or bool(v.any()))
+
+
+def _no_backward(reader) -> dict | None:
+    fn = getattr(reader, "frames_without_backward", None)
+    frames = fn() if fn else []
+    return {"frames": frames, "effect": reader.NO_BACKWARD_EFFECT} if frames else None
+
+
 def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
     return {"color0": None if f0 is None else f0.color, "depth0": None if f0 is None else f0.depth,
-            "mv0": None if f0 is None else f0.mv, "camera0": None if f0 is None else f0.camera,
+            "mv0": f0.mv if f0 is not None and _usable_mv(f0) else None,
+            "camera0": None if f0 is None else f0.camera,
             "color1": f1.color, "depth1": f1.depth, "mv1": f1.mv, "camera1": f1.camera,
             "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height,
             "number0": None if f0 is None else getattr(f0, "number", None),
@@ -360,6 +374,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
                "input": reader.folder, "input_frames": numbers, "timeline_scale": m,
                "chunk": None if chunk is None else f"{chunk[0]}/{chunk[1]}",
+               "no_backward_vectors": _no_backward(reader),
                "outputs": [os.path.basename(out.path_for(on)) for on in plan["outputs"]],
                "written": written, "skipped_existing": skipped_existing,
                "replayed_for_history": replayed,

@@ -509,3 +509,27 @@ def test_normals_in_camera_space_converted_to_world(tmp_path, tiny_scene):
     f = read_frame(p, 0, layout=str(lp))
     expect = rot[:3, :3].T @ np.array([0, 0, 1.0])
     assert np.allclose(f.normal[:, 3, 3].numpy(), expect, atol=1e-6)
+
+
+def test_frames_without_backward_vectors_are_told_and_not_used(tmp_path, tiny_scene):
+    """Forward-only files: the first frame on disk has nothing to derive backward vectors
+    from. fgen info and the run log name it and say what the pipeline does there; the
+    pipeline never reads its zero vectors as motion (linear motion from the next frame)."""
+    from click.testing import CliRunner
+
+    from fgcli.cli import cli
+    from fgcli.runner import make_ctx
+
+    d = write_seq(tmp_path / "nk", 3, lambda t: nuke_channels(tiny_scene(t), backward=False))
+    r = SequenceReader(d)
+    assert r.frames_without_backward() == [r.numbers[0]]
+    f0, f1 = r.read(r.numbers[0]), r.read(r.numbers[1])
+    ctx = make_ctx(f0, f1, 0.5, "interp")
+    assert ctx["mv0"] is None and ctx["mv1"] is not None
+    res = CliRunner().invoke(cli, ["info", d])
+    assert res.exit_code == 0 and f"no backward vectors: frames {r.numbers[0]}" in res.output
+    res = CliRunner().invoke(cli, ["interpolate", d, str(tmp_path / "o"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert f"frames {r.numbers[0]} of" in res.output and "linear motion" in res.output
+    full = SequenceReader(write_seq(tmp_path / "nb", 3, lambda t: nuke_channels(tiny_scene(t))))
+    assert full.frames_without_backward() == []

@@ -147,6 +147,11 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
             click.echo(f"skipped {t['skipped']} stage runs where not needed "
                        f"(saving ~{t['ms_saved_per_frame']:.1f} ms/frame); see fgen-run.json",
                        err=True)
+        nb = summary.get("no_backward_vectors")
+        if nb:
+            click.echo(f"frames {', '.join(str(n) for n in nb['frames'])} of {task.folder}: no "
+                       f"usable backward vectors (forward-only files, no earlier file to derive "
+                       f"them from); {nb['effect']}", err=True)
         sc = summary.get("scene_cuts") or {}
         if sc.get("cuts"):
             click.echo(f"scene cuts (nearest frame repeated, no blending) at output frames "

@@ -90,6 +90,7 @@ def describe(reader, do_scan: bool = False, layout_option=None) -> dict:
         "has_camera": reader.has_camera,
         "camera_source": reader.camera_source,
         "notes": reader.notes,
+        "no_backward_vectors": reader.frames_without_backward(),
         "tiled": any(p.tiled for p in h.parts),
         "data_window_smaller": any(not p.full_data_window for p in h.parts),
     }
@@ -112,6 +113,11 @@ def _text(d: dict) -> str:
                      "mv (backward vectors derived from forward vectors)")
     fields = ", ".join(names)
     lines.append(f"fields:      {fields}")
+    if d.get("no_backward_vectors"):
+        from fgcli.io.reader import SequenceReader
+
+        lines.append(f"no backward vectors: frames {', '.join(map(str, d['no_backward_vectors']))}"
+                     f" (nothing before them to derive from); {SequenceReader.NO_BACKWARD_EFFECT}")
     lines.append(f"cameras:     {d['camera_source'] or 'none'}")
     extra = []
     if d["parts"] > 1:

@@ -85,6 +85,17 @@ class SequenceReader:
         """True when backward vectors are derived from forward vectors."""
         return self.info.mv_source == "forward"
 
+    def frames_without_backward(self) -> list[int]:
+        """Selected frames whose backward vectors cannot be derived (forward-only files with
+        no file before them on disk): the reader gives them zero vectors, flagged invalid."""
+        if not self.mv_derived:
+            return []
+        return [n for n in self.numbers if n - self.disk_step not in self.all_files]
+
+    NO_BACKWARD_EFFECT = ("interpolation from such a frame uses linear motion from the next "
+                          "frame's vectors (its own vectors are not used); extrapolation past "
+                          "it sees no motion and repeats it")
+
     def check_sizes(self) -> None:
         """Read every frame's header; InputError naming the first frame whose size differs."""
         for n in self.numbers:
