@@ -166,6 +166,7 @@ class EvalTask:
     scene_cuts: str = "auto"
     cut_threshold: float | None = None
     backend: str = "auto"  # --backend: auto | torch | numba
+    region: str = "data"  # --region: data | display
 
     def label(self) -> str:
         return self.name or self.in_dir
@@ -199,6 +200,7 @@ def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:
     res = ev.evaluate(src, pipes, task.mode, progress=progress,
                       device=task.device, hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
                       on_frame=on_frame, scene_cuts=task.scene_cuts,
-                      cut_threshold=task.cut_threshold, backend=task.backend)
+                      cut_threshold=task.cut_threshold, backend=task.backend,
+                      region=task.region)
     res["sequence"] = task.label()
     return res

@@ -218,12 +218,35 @@ class Scores:
                 "frames": len(self.psnr)}
 
 
-def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
+def region_box(frames, region: str = "data"):
+    """The (x, y, w, h) box to score: region 'data' = the bounding box of the union of the
+    frames' data windows (target and inputs; padding outside them carries no data and
+    would inflate every score); 'display' or no windowed frame = None (the whole frame)."""
+    wins = [getattr(f, "data_window", None) for f in frames if f is not None]
+    if region == "display" or all(w is None for w in wins):
+        return None
+    f0 = next(f for f in frames if f is not None)
+    boxes = [w if w is not None else (0, 0, f0.width, f0.height) for w in wins]
+    boxes = [b for b in boxes if b[2] > 0 and b[3] > 0] or [(0, 0, 1, 1)]
+    x0, y0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
+    x1, y1 = max(b[0] + b[2] for b in boxes), max(b[1] + b[3] for b in boxes)
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def _crop(t, box):
+    if t is None or box is None:
+        return t
+    x, y, w, h = box
+    return t[..., y:y + h, x:x + w]
+
+
+def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True, box=None):
     import numpy as np
 
     from fgcli.ops import metrics as M
     from fgcli.ops.color import srgb_oetf
 
+    out, gt, dis, mov = (_crop(t, box) for t in (out, gt, dis, mov))
     o = out.detach().float().cpu()
     g = gt.detach().float().cpu()
     od, gd = srgb_oetf(o), srgb_oetf(g)  # display-referred, for the pooled masked MSE
@@ -255,7 +278,7 @@ def score_frame(sc: Scores, out, gt, dis, mov, target: int, hdr: bool = True):
 def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str = "cpu",
              hdr_flip: bool = True, keep_worst: bool = False, on_frame=None,
              scene_cuts: str = "auto", cut_threshold: float | None = None,
-             backend: str = "auto") -> dict:
+             backend: str = "auto", region: str = "data") -> dict:
     """Run every pipeline on every task; returns {"pipelines": {label: {...}}, ...}.
     on_frame: called with 1 per scored (frame, pipeline) (an executor's progress).
     backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve)."""
@@ -286,6 +309,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     holes: dict = {}  # pipeline -> [unfilled pixels, pixels] (gffe_hole_fill)
     worst: dict = {}
     cuts: list = []
+    scored_px, total_px = 0, 0
     bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
                disable=None if progress else True, leave=False)
     with torch.inference_mode():
@@ -296,6 +320,12 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
             if task.target not in masks_cache:
                 masks_cache[task.target] = target_masks(src, task, gt)
             dis, mov = masks_cache[task.target]
+            box = region_box([gt, f0, f1], region)
+            if box is not None:
+                scored_px += box[2] * box[3]
+            else:
+                scored_px += gt.width * gt.height
+            total_px += gt.width * gt.height
             g0 = f0.to(device) if f0 is not None else None
             g1 = f1.to(device)
             fctx = make_ctx(g0, g1, task.alpha, mode)
@@ -312,7 +342,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                 ctx["backend"] = backend
                 ctx = run_stages(stages, ctx, tm, label=str(task.target), sync=sync,
                                  measure_skips=True, facts=dict(facts))
-                score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip)
+                score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip, box)
                 if ctx.get("holes") is not None:
                     hc = holes.setdefault(p.label, [0, 0])
                     hc[0] += int(ctx["holes"])
@@ -346,6 +376,10 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                            "cuts": [c["frame"] for c in cuts if c["cut"]]},
             "display": "sRGB OETF of clip(linear, 0, 1); HDR-FLIP on linear color",
             "backend": backend,
+            "region": {"mode": region, "scored_fraction": scored_px / max(1, total_px),
+                       "what": ("the whole display window" if scored_px == total_px else
+                                "the bounding box of the data windows of the target and its "
+                                "input frames (padding outside carries no data)")},
             "_worst": worst}
 
 

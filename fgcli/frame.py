@@ -61,6 +61,9 @@ class Frame:
     time: float | None = None  # number + alpha for generated frames; defaults to number
     mv_fwd: Any = None  # (2, H, W) pixels toward frame t+1, y down; optional
     header_types: dict = field(default_factory=dict)  # header attribute -> OIIO type name
+    # (x, y, w, h) of the pixels that carry data, within the (display-sized) tensors; None =
+    # all of them. Outside it: no data (alpha 0, depth +inf, vectors invalid).
+    data_window: tuple | None = None
 
     @property
     def height(self) -> int:

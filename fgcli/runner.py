@@ -115,9 +115,27 @@ def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
             "number1": getattr(f1, "number", None)}
 
 
-def generated_frame(ctx: dict, number: int, time_: float, like: Frame) -> Frame:
+def content_window(color, depth) -> tuple:
+    """(x, y, w, h) bounding the pixels a generated frame has content at (finite depth or
+    non-zero color)."""
+    import torch
+
+    has = torch.isfinite(depth[0]) | (color != 0).any(0)
+    rows, cols = torch.nonzero(has.any(1)).flatten(), torch.nonzero(has.any(0)).flatten()
+    if rows.numel() == 0:
+        return (0, 0, 0, 0)
+    y0, y1, x0, x1 = int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
+    return (x0, y0, x1 - x0 + 1, y1 - y0 + 1)
+
+
+def generated_frame(ctx: dict, number: int, time_: float, like: Frame,
+                    windowed: bool = False) -> Frame:
+    """The output frame; windowed (an input had a data window smaller than the display
+    window): its data window bounds what it contains."""
+    dw = content_window(ctx["color"], ctx["depth"]) if windowed else None
     return Frame(number=number, color=ctx["color"], depth=ctx["depth"], mv=ctx["mv"],
-                 header=dict(like.header), header_types=dict(like.header_types), time=time_)
+                 header=dict(like.header), header_types=dict(like.header_types), time=time_,
+                 data_window=dw)
 
 
 @dataclass
@@ -359,7 +377,9 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                 if ctx.get("render_window") is not None:
                     windows[str(b)] = ctx["render_window"]
                 base, span = (b, step) if mode == "extrap" else (a, b - a)
-                gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1)
+                windowed = (getattr(f1, "data_window", None) is not None
+                            or getattr(f0, "data_window", None) is not None)
+                gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1, windowed)
                 src = f"{a},{b}" if a is not None else f"{b}"
                 writer.submit(out.path_for(on), gen.to("cpu"), **wkw,
                               attributes={**attrs_common, "fgen:alpha": float(t),

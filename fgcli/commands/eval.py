@@ -21,6 +21,10 @@ from fgcli.io.options import input_options
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
               help="Write PNG plots (quality vs time, stage times, worst-frame crops).")
 @click.option("--device", default="cpu", show_default=True)
+@click.option("--region", type=click.Choice(["data", "display"]), default="data",
+              show_default=True,
+              help="data: score the bounding box of the data windows of the target and its "
+                   "inputs (padding carries no data); display: the whole frame.")
 @click.option("--backend", type=click.Choice(["auto", "torch", "numba"]), default="auto",
               show_default=True,
               help="Per-pixel kernels: numba (compiled CPU kernels), torch (reference ops, "
@@ -31,7 +35,7 @@ from fgcli.io.options import input_options
 @scene_cut_options
 @input_options
 def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
-        backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
+        region, backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
         **in_kw):
     """Score pipelines against ground truth (DESIGN.md section 4).
 
@@ -82,7 +86,7 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
     tasks = [EvalTask(in_dir=d, gt_dir=gt_dir, factor=factor, pipelines=tuple(chosen), mode=mode,
                       in_kw=in_kw, device=device, hdr_flip=not no_hdr_flip,
                       keep_worst=report_dir is not None, name=lab, scene_cuts=scene_cuts,
-                      cut_threshold=cut_threshold, backend=backend)
+                      cut_threshold=cut_threshold, backend=backend, region=region)
              for d, lab in zip(in_dirs, labels)]
     srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw) for t in tasks]  # fail early
     if executor == "dask":
@@ -113,6 +117,9 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
         click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
                    f"{src.inputs[0]}..{src.inputs[-1]}")
         click.echo(f"# color: {result['display']}; backend: {result.get('backend')}")
+        reg = result["region"]
+        click.echo(f"# scored: {reg['what']} ({100 * reg['scored_fraction']:.0f}% of the "
+                   f"display window; --region display scores all of it)")
         if result["scene_cuts"]["cuts"]:
             click.echo(f"# scene cuts (nearest frame repeated) at frames "
                        f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")

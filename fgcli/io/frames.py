@@ -64,8 +64,18 @@ def write_frame(path: str, frame: Frame, layout="fgen", half: bool = True,
     types_attr.update(cameras.CAMERA_ATTRIBUTE_TYPES)
     for k in (attributes or {}):
         types_attr.pop(k, None)
+    window = display = None
+    dw = getattr(frame, "data_window", None)
+    if dw is not None:  # write only the pixels that carry data (an EXR data window)
+        h, w = frame.height, frame.width
+        x, y, ww, hh = (int(v) for v in dw)
+        if ww <= 0 or hh <= 0:  # nothing at all: one pixel (EXR needs a non-empty window)
+            x, y, ww, hh = 0, 0, 1, 1
+        if (x, y, ww, hh) != (0, 0, w, h):
+            chans = {k: v[y:y + hh, x:x + ww] for k, v in chans.items()}
+            window, display = (x, y, ww, hh), (w, h)
     exr.write_exr(path, chans, types, fgen_attributes(frame, attributes), compression,
-                  attribute_types=types_attr)
+                  attribute_types=types_attr, data_window=window, display=display)
 
 
 def read_frame(path: str, number: int, layout=None, view: str | None = None,

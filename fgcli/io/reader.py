@@ -132,6 +132,8 @@ class SequenceReader:
                 raw.helpers.add("depth")
         if raw.camera is None and n in self.sidecar:
             raw.camera = self.sidecar[n]
+        win = self._window_of(header)
+        raw.data_mask, raw.data_window = (None, None) if win is None else win
         self._fill_sky_vectors(raw)
         if not self._depth_checked and raw.arrays.get("depth") is not None:
             self._depth_checked = True
@@ -144,7 +146,33 @@ class SequenceReader:
         return raw
 
     def read(self, n: int) -> Frame:
-        return self._span_gap(self.read_raw(n).to_frame())
+        raw = self.read_raw(n)
+        f = raw.to_frame()
+        if raw.data_window is not None:  # padding carries no data: say so explicitly
+            import torch
+
+            mask = torch.from_numpy(raw.data_mask[None])
+            alpha = mask.float() if f.alpha is None else f.alpha * mask
+            kw = {"alpha": alpha, "data_window": raw.data_window}
+            if f.mv is not None:  # derived vectors too: none where this frame has no data
+                kw["mv"] = torch.where(mask, f.mv, torch.zeros_like(f.mv))
+                kw["mv_valid"] = mask if f.mv_valid is None else f.mv_valid & mask
+            f = f.replace(**kw)
+        return self._span_gap(f)
+
+    @staticmethod
+    def _window_of(header) -> tuple | None:
+        """Union of the parts' data windows on the display window, as (mask (H, W) bool,
+        bounding box (x, y, w, h)); None when every part covers the display window."""
+        if all(p.full_data_window for p in header.parts):
+            return None
+        mask = np.zeros((header.height, header.width), bool)
+        for p in header.parts:
+            mask |= p.data_mask()
+        ys, xs = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+        if len(ys) == 0:
+            return mask, (0, 0, 0, 0)
+        return mask, (int(xs[0]), int(ys[0]), int(xs[-1] - xs[0] + 1), int(ys[-1] - ys[0] + 1))
 
     # -- vectors that span the selected step ------------------------------------------------
     def gap_before(self, n: int) -> int:
@@ -216,6 +244,13 @@ class SequenceReader:
                 src = (p.arrays["mv_fwd"], p.arrays.get("depth"), p.valid.get("mv_fwd"))
         if src is not None:
             mv, valid = backward_from_forward(*src)
+            here = raw.arrays.get("depth")
+            if here is not None and not valid.all():
+                # no surface here (sky, empty space of an element render) and nothing of
+                # frame t-1 landed: a neighbour's surface motion is not this pixel's
+                empty = ~valid & ~np.isfinite(here.reshape(1, h, w))
+                if empty.any():
+                    mv = np.where(empty, 0.0, mv).astype(np.float32)
         else:  # first frame on disk: nothing to derive from
             mv = np.zeros((2, h, w), np.float32)
             valid = np.zeros((1, h, w), bool)
