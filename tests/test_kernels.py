@@ -287,7 +287,10 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
 def test_dispatch_and_resolve():
     from fgcli.errors import UsageError
 
-    assert resolve("auto", "cpu") == "numba" and resolve("auto", "cuda") == "torch"
+    from fgcli.kernels import AUTO_CPU
+
+    assert resolve("auto", "cpu") == AUTO_CPU and resolve("auto", "cuda") == "torch"
+    assert resolve("numba", "cpu") == "numba" and resolve("torch", "cpu") == "torch"
     assert resolve("torch", "cpu") == "torch" and resolve("numba", "cpu") == "numba"
     with pytest.raises(UsageError):
         resolve("numba", "cuda")

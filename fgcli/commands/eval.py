@@ -28,7 +28,8 @@ from fgcli.io.options import input_options
 @click.option("--backend", type=click.Choice(["auto", "torch", "numba"]), default="auto",
               show_default=True,
               help="Per-pixel kernels: numba (compiled CPU kernels), torch (reference ops, "
-                   "the CUDA path); auto = numba on CPU, torch on CUDA.")
+                   "the CUDA path); auto = torch until the kernels are faster "
+                   "(docs/performance.md).")
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
 @click.option("--no-progress", is_flag=True)
 @executor_options

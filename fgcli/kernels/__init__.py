@@ -34,9 +34,16 @@ def numba_available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+# What `auto` picks on the CPU. The kernels are bit-identical to the torch ops but not yet
+# faster end to end (benchmarks/stages.py at 1080p: mob-fgsr interp 675 ms numba vs 726 ms
+# torch, 1.1x; blend and mv-warp slower), and a fresh install pays ~30-70 s of one-time
+# compilation: auto stays torch until the kernels earn it; --backend numba opts in.
+AUTO_CPU = "torch"
+
+
 def resolve(backend: str | None, device: str = "cpu") -> str:
-    """--backend value -> 'torch' or 'numba'. auto: numba on CPU (when installed), torch on
-    CUDA. numba on a CUDA device is a usage error."""
+    """--backend value -> 'torch' or 'numba'. auto: AUTO_CPU on CPU (numba only when
+    installed), torch on CUDA. numba on a CUDA device is a usage error."""
     from fgcli.errors import UsageError
 
     b = (backend or "auto").lower()
@@ -44,7 +51,9 @@ def resolve(backend: str | None, device: str = "cpu") -> str:
         raise UsageError(f"unknown backend '{backend}' ({', '.join(BACKENDS)})")
     cuda = str(device).startswith("cuda")
     if b == "auto":
-        return "torch" if cuda or not numba_available() else "numba"
+        if cuda or AUTO_CPU == "torch" or not numba_available():
+            return "torch"
+        return "numba"
     if b == "numba":
         if cuda:
             raise UsageError("--backend numba runs on the CPU; use --backend torch (or auto) "
