@@ -159,3 +159,20 @@ def test_open_output_from_reader(tmp_path, tiny_scene):
     assert out.layout is r.layout and out.half is False and out.compression == "zips"
     assert os.path.basename(out.path_for(1003)) == "shot_1003.exr"
     assert np.isfinite(r.read(1001).color.numpy()).all()
+
+
+def test_a_truncated_output_is_not_complete(tmp_path):
+    """--resume rewrites an output whose header survived but whose pixels did not."""
+    import torch
+
+    from fgcli.frame import Frame
+    from fgcli.io.frames import write_frame
+    from fgcli.io.output import is_complete
+
+    p = tmp_path / "f.0001.exr"
+    write_frame(str(p), Frame(number=1, color=torch.rand(3, 40, 64), depth=torch.rand(1, 40, 64),
+                              mv=torch.rand(2, 40, 64)))
+    assert is_complete(str(p))
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    assert not is_complete(str(p))

@@ -45,13 +45,20 @@ def _torch():
 
 # ---------------------------------------------------------------------------------- views
 
+def _names(v) -> list[str]:
+    """A string or string-list attribute as a list of strings; anything else (a corrupt
+    header can give an attribute any type) as []."""
+    if isinstance(v, str):
+        return [v] if v else []
+    if isinstance(v, (list, tuple)):
+        return [x for x in v if isinstance(x, str)]
+    return []
+
+
 def views(header: exr.Header) -> list[str]:
     """The file's view names, default (first) view first; [] for a single-view file."""
     out: list[str] = []
-    mv = header.parts[0].attributes.get("multiView")
-    if isinstance(mv, str):
-        mv = [mv]
-    for v in (mv or []):
+    for v in _names(header.parts[0].attributes.get("multiView")):
         if v not in out:
             out.append(v)
     for p in header.parts:
@@ -80,9 +87,8 @@ def channel_space(header: exr.Header, view: str | None = None
     for p in header.parts:
         if p.view is not None and p.view != v:
             continue
-        pviews = p.attributes.get("multiView") or (vs if len(header.parts) == 1 else [])
-        if isinstance(pviews, str):
-            pviews = [pviews]
+        pviews = _names(p.attributes.get("multiView")) or (vs if len(header.parts) == 1
+                                                             else [])
         default = pviews[0] if pviews else None
         for ch in p.channels:
             comps = ch.split(".")

@@ -43,12 +43,14 @@ def fgen_attributes(pipeline: str | None = None, alpha: float | None = None,
 
 
 def is_complete(path: str) -> bool:
-    """True when `path` opens as an EXR and its header reads."""
+    """True when `path` opens as an EXR, its header reads, and the file is long enough to
+    hold the pixels the header describes (a truncated copy is not complete); no pixel is
+    decoded."""
     try:
-        exr.read_header(path)
-        return True
+        h = exr.read_header(path)
     except InputError:
         return False
+    return getattr(h, "data_bytes", 0) >= getattr(h, "least_bytes", 0)
 
 
 def _same_folder(a: str, b: str) -> bool:
