@@ -48,9 +48,43 @@ def is_complete(path: str) -> bool:
     decoded."""
     try:
         h = exr.read_header(path)
+        size, header_end = exr._check_file(path)
     except InputError:
         return False
-    return getattr(h, "data_bytes", 0) >= getattr(h, "least_bytes", 0)
+    if getattr(h, "data_bytes", 0) < getattr(h, "least_bytes", 0):
+        return False
+    if len(h.parts) != 1 or h.parts[0].tiled or header_end <= 0:
+        return True  # what fgen writes is single-part scanline; others: header only
+    return _chunks_inside(path, size, header_end)
+
+
+def _chunks_inside(path: str, size: int, header_end: int) -> bool:
+    """A single-part scanline EXR: the offset table follows the header (its first entry
+    tells its length) and every chunk, header and data, lies inside the file."""
+    import struct
+
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(header_end)
+            first = fh.read(8)
+            if len(first) < 8:
+                return False
+            (off0,) = struct.unpack("<Q", first)
+            n = (off0 - header_end) // 8
+            if off0 <= header_end or off0 > size or (off0 - header_end) % 8 or n > 1 << 24:
+                return False
+            table = first + fh.read(8 * (n - 1))
+            if len(table) < 8 * n:
+                return False
+            offs = struct.unpack(f"<{n}Q", table)
+            last = max(offs)
+            if min(offs) < off0 or last + 8 > size:
+                return False
+            fh.seek(last)
+            _, nbytes = struct.unpack("<ii", fh.read(8))
+            return nbytes >= 0 and last + 8 + nbytes <= size
+    except OSError:
+        return False
 
 
 def _same_folder(a: str, b: str) -> bool:
