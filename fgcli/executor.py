@@ -188,4 +188,34 @@ def run_dask(tasks: list[RunTask], scheduler: str | None = None, workers: int | 
         lines = [f"{w.label()}: frames not written: {', '.join(m) if m else 'none'} ({why})"
                  for w, m, why in failed]
         raise ExecutorError(f"{len(failed)} of {len(work)} tasks failed; " + "; ".join(lines))
+    write_merged_runs(ok)
     return ok
+
+
+def write_merged_runs(results: list) -> None:
+    """One OUT/fgen-run.json per output folder of a chunked run: what each chunk's own
+    fgen-run.chunk-K-of-N.json says, gathered (written frames, cuts, the chunk files)."""
+    import json
+
+    from fgcli.io import atomic
+
+    by_out: dict = {}
+    for task, summary in results:
+        by_out.setdefault(task.out_dir, []).append((task, summary))
+    for out_dir, items in by_out.items():
+        items.sort(key=lambda ts: ts[0].chunk or (0, 0))
+        first = items[0][1]
+        merged = {k: first.get(k) for k in ("pipeline", "mode", "alphas", "input",
+                                            "input_frames", "timeline_scale", "command",
+                                            "device", "backend") if k in first}
+        merged["executor"] = "dask"
+        merged["chunks"] = [{"chunk": s.get("chunk"),
+                             "file": f"fgen-run.chunk-{t.chunk[0]}-of-{t.chunk[1]}.json"
+                             if t.chunk else "fgen-run.json",
+                             "written": s["written"], "outputs": s.get("outputs", []),
+                             "ms_per_frame": s["timings"]["ms_per_frame"]} for t, s in items]
+        merged["written"] = sum(s["written"] for _, s in items)
+        merged["skipped_existing"] = sum(s["skipped_existing"] for _, s in items)
+        merged["scene_cuts"] = sorted({c for _, s in items
+                                       for c in (s.get("scene_cuts") or {}).get("cuts", [])})
+        atomic.write_text(os.path.join(out_dir, "fgen-run.json"), json.dumps(merged, indent=1))

@@ -50,6 +50,11 @@ def test_local_cluster_is_byte_identical_to_one_run(tmp_path, mode, extra):
     assert r.returncode == 0, r.stderr
     assert "chunk 1/2" in r.stderr and "chunk 2/2" in r.stderr  # spread over both workers
     _same(tmp_path / "ref", out)
+    import json
+
+    run = json.loads((out / "fgen-run.json").read_text())  # the chunks' summaries, merged
+    assert run["executor"] == "dask" and len(run["chunks"]) == 2
+    assert run["written"] == len(_frames(out))
 
 
 def test_a_killed_worker_is_replaced_and_its_frames_rewritten(tmp_path):
