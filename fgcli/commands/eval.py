@@ -119,8 +119,11 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
                    f"{src.inputs[0]}..{src.inputs[-1]}")
         click.echo(f"# color: {result['display']}; backend: {result.get('backend')}")
         reg = result["region"]
-        click.echo(f"# scored: {reg['what']} ({100 * reg['scored_fraction']:.0f}% of the "
-                   f"display window; --region display scores all of it)")
+        if reg["scored_fraction"] < 1.0:
+            click.echo(f"# scored: {reg['what']} ({100 * reg['scored_fraction']:.0f}% of the "
+                       f"display window; --region display scores all of it)")
+        else:
+            click.echo(f"# scored: {reg['what']}")
         if result["scene_cuts"]["cuts"]:
             click.echo(f"# scene cuts (nearest frame repeated) at frames "
                        f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")
