@@ -96,18 +96,15 @@ def open_task(task: RunTask):
     return reader, out, p
 
 
-def plan_task(task: RunTask) -> dict:
-    """The task's plan (fgcli.runner.plan_outputs) with output paths, reading headers only."""
-    from fgcli.io.options import open_input
+def plan_task(task: RunTask, reader=None) -> dict:
+    """The task's plan (fgcli.runner.plan_outputs), reading headers only (none when the
+    sequence's reader is given)."""
     from fgcli.runner import plan_outputs
 
-    from fgcli import pipeline as pl
-
-    p = pl.load(task.pipeline)
-    reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern, **task.in_kw)
-    plan = plan_outputs(reader.numbers, reader.step, task.mode, list(task.times), task.count,
+    if reader is None:
+        reader = open_task(task)[0]
+    return plan_outputs(reader.numbers, reader.step, task.mode, list(task.times), task.count,
                         task.emit, task.chunk)
-    return plan, reader
 
 
 def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
@@ -141,8 +138,8 @@ def split_chunks(tasks: list[RunTask], per_sequence: int) -> list[RunTask]:
     return out
 
 
-def error_result(task: RunTask, err: BaseException) -> dict:
-    """A failed task, as data an executor can send back (exceptions with extra fields do
+def error_result(task, err: BaseException) -> dict:
+    """A failed task (RunTask or EvalTask), as data an executor can send back (exceptions with extra fields do
     not always survive pickling)."""
     code = err.exit_code if isinstance(err, FgenError) else 1
     msg = err.format_message() if isinstance(err, FgenError) else f"{type(err).__name__}: {err}"

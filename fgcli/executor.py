@@ -37,15 +37,11 @@ def _worker_call(fn, arg, queue_name: str | None, threads: int | None):
     if queue_name:
         from distributed import Queue
 
-        q = Queue(queue_name)
-
-        def on_frame(k):
-            q.put(k)
+        on_frame = Queue(queue_name).put  # progress: frames finished
     try:
         return fn(arg, on_frame)
-    except FgenError as e:
-        return error_result(arg, e) if isinstance(arg, RunTask) else {
-            "error": e.format_message(), "exit_code": e.exit_code, "task": str(arg)}
+    except FgenError as e:  # bad input: reported as data, never retried
+        return error_result(arg, e)
 
 
 def _run_task(task: RunTask, on_frame):
@@ -64,7 +60,7 @@ def eval_dask(tasks: list, scheduler: str | None = None, workers: int | None = N
     ExecutorError naming the sequences that failed."""
     cl = Cluster(scheduler, workers)
     try:
-        results = cl.map(_run_eval, tasks, [t.label() for t in tasks], total_frames, progress,
+        results = cl.map(_run_eval, tasks, total_frames, progress,
                          f"eval (dask, {cl.workers} workers)")
     finally:
         cl.close()
@@ -102,8 +98,7 @@ class Cluster:
             self.client = Client(self.cluster)
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})) or (workers or cores))
 
-    def map(self, fn, args: list, labels: list[str], total_frames: int, progress: bool,
-            desc: str) -> list:
+    def map(self, fn, args: list, total_frames: int, progress: bool, desc: str) -> list:
         """fn(arg, on_frame) for every arg on the workers; results in order (an exception
         object where a task failed for good). One progress bar over all frames."""
         from distributed import Queue, wait
@@ -154,23 +149,23 @@ def run_dask(tasks: list[RunTask], scheduler: str | None = None, workers: int | 
     # killed runs removed), existing outputs refused unless --overwrite / --resume
     prepared = []
     for t in tasks:
-        plan, reader = plan_task(t)
-        _, out, _ = open_task(t)
-        out.check_all([out.path_for(n) for n in plan["outputs"]])
-        prepared.append((t, out))
+        reader, out, _ = open_task(t)
+        out.check_all([out.path_for(n) for n in plan_task(t, reader)["outputs"]])
+        prepared.append((t, reader))
     cl = Cluster(scheduler, workers)
     try:
         per = chunks or cl.workers
-        work = []
-        for t, out in prepared:
+        work, plans = [], []
+        for t, reader in prepared:
             # a retried chunk keeps what its first attempt finished (--overwrite: rewrites)
             kw = dict(t.out_kw)
             if not kw.get("overwrite"):
                 kw["resume"] = True
-            work.extend(split_chunks([replace(t, out_kw=kw)], per))
-        plans = [plan_task(w)[0] for w in work]
+            for w in split_chunks([replace(t, out_kw=kw)], per):
+                work.append(w)
+                plans.append(plan_task(w, reader))
         total = sum(len(p["outputs"]) for p in plans)
-        results = cl.map(_run_task, work, [w.label() for w in work], total, progress,
+        results = cl.map(_run_task, work, total, progress,
                          f"{tasks[0].pipeline} {tasks[0].mode} (dask, {cl.workers} workers)")
     finally:
         cl.close()

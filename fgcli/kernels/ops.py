@@ -11,7 +11,7 @@ import torch
 
 from fgcli import ops as R
 from fgcli.kernels import reference as RF
-from fgcli.ops._util import (ALPHA_MAX, aux, check_alpha, check_choice, check_same,
+from fgcli.ops._util import (ALPHA_MAX, aux, check_alpha, check_same,
                              check_tensor)
 
 F32 = np.float32
@@ -69,17 +69,8 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
                  depth0_tol_rel=0.05):
     if not _cpu(depth1, mv1, mv0, depth0):
         return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel)
-    depth1 = check_tensor(depth1, "depth1", 1)
-    mv1 = check_tensor(mv1, "mv1", 2)
-    if mv0 is not None:
-        mv0 = check_tensor(mv0, "mv0", 2)
-    if depth0 is not None:
-        depth0 = check_tensor(depth0, "depth0", 1)
-    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"), (depth0, "depth0"))
-    tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
-    check_choice(model, "model", ("linear", "quadratic"))
-    check_choice(mode, "mode", ("interp", "extrap"))
-    a = check_alpha(alpha, hi=1.0 if mode == "interp" else ALPHA_MAX)
+    depth1, mv1, mv0, depth0, tol, a = R.splat.splat_args(depth1, mv1, mv0, alpha, model,
+                                                          mode, depth0, depth0_tol_rel)
     h, w = depth1.shape[-2:]
     if (h + 2) * (w + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
@@ -108,13 +99,8 @@ def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
     if not isinstance(result, R.SplatResult) or fill != "nearest" or \
             not _cpu(result.depth, fallback_mv, fallback_depth):
         return R.gap_fill(result, depth_threshold_rel, fill, fallback_mv, fallback_depth)
-    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
-    if fallback_mv is not None:
-        fallback_mv = check_tensor(fallback_mv, "fallback_mv", 2)
-        check_same(result.depth, "result.depth", (fallback_mv, "fallback_mv"))
-    if fallback_depth is not None:
-        fallback_depth = check_tensor(fallback_depth, "fallback_depth", 1)
-        check_same(result.depth, "result.depth", (fallback_depth, "fallback_depth"))
+    thr, fallback_mv, fallback_depth = R.fill.gap_fill_args(result, depth_threshold_rel,
+                                                            fallback_mv, fallback_depth)
     from fgcli.kernels.fill import gap_fill_kernel
 
     h, w = result.depth.shape[-2:]
@@ -225,22 +211,11 @@ def blend_interp(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_t
         kw = {"static": static} if static is not None else {}
         return R.blend_interp(*args, alpha=alpha, t_d_rel=t_d_rel, t_b=t_b,
                               return_depth=return_depth, **kw)
-    c0 = check_tensor(c0_sample, "c0_sample")
-    c1 = check_tensor(c1_sample, "c1_sample")
-    d0 = check_tensor(d0_sample, "d0_sample", 1)
-    d1 = check_tensor(d1_sample, "d1_sample", 1)
-    v0 = check_tensor(valid0, "valid0", 1, dtype_kind="bool")
-    v1 = check_tensor(valid1, "valid1", 1, dtype_kind="bool")
-    if d_target is not None:
-        d_target = check_tensor(d_target, "d_target", 1)
-    check_same(c0, "c0_sample", (c1, "c1_sample"), (d0, "d0_sample"), (d1, "d1_sample"),
-               (v0, "valid0"), (v1, "valid1"), (d_target, "d_target"))
-    if c0.shape != c1.shape:
-        raise ValueError(f"c1_sample: shape {tuple(c1.shape)} does not match c0_sample "
-                         f"{tuple(c0.shape)}")
-    a = check_alpha(alpha)
-    t_d = check_alpha(t_d_rel, "t_d_rel", 0.0, None)
-    tb = check_alpha(t_b, "t_b", 0.0, None)
+    from fgcli.ops.blend import interp_blend_args
+
+    c0, c1, d0, d1, v0, v1, d_target, a, t_d, tb = interp_blend_args(
+        c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target, alpha, t_d_rel,
+        t_b)
     from fgcli.kernels.blend import blend_kernel
 
     h, w = d0.shape[-2:]

@@ -67,6 +67,19 @@ def _nearest_depth(depth, fx, fy, x, y, h, w):
     return v
 
 
+@njit(**INLINE)
+def _warp_pixel(c, d, to, s, sd, v, x, y, h, w, gxn, gyn, kx, ky):
+    """One frame at pixel (x, y): colour (bilinear) and depth (nearest) along ``to``, and
+    the valid mask on the raw offset."""
+    rx = to[0, y, x]
+    ry = to[1, y, x]
+    v[y, x] = _inside(rx, ry, x, y, h, w)
+    fx = sflow(rx)
+    fy = sflow(ry)
+    _bilinear(c, s, x, y, fx, fy, h, w, gxn, gyn, kx, ky)
+    sd[y, x] = _nearest_depth(d, fx, fy, x, y, h, w)
+
+
 @njit(**KERNEL)
 def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0, v0):
     """Mob-FGSR warp stage: colour (bilinear) and depth (nearest) of frame 1 along to1 and,
@@ -75,21 +88,9 @@ def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0
     for py in prange(h):
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
         for x in range(w):
-            rx = to1[0, y, x]
-            ry = to1[1, y, x]
-            v1[y, x] = _inside(rx, ry, x, y, h, w)
-            fx = sflow(rx)
-            fy = sflow(ry)
-            _bilinear(c1, s1, x, y, fx, fy, h, w, gxn, gyn, kx, ky)
-            sd1[y, x] = _nearest_depth(d1, fx, fy, x, y, h, w)
+            _warp_pixel(c1, d1, to1, s1, sd1, v1, x, y, h, w, gxn, gyn, kx, ky)
             if two:
-                rx = to0[0, y, x]
-                ry = to0[1, y, x]
-                v0[y, x] = _inside(rx, ry, x, y, h, w)
-                fx = sflow(rx)
-                fy = sflow(ry)
-                _bilinear(c0, s0, x, y, fx, fy, h, w, gxn, gyn, kx, ky)
-                sd0[y, x] = _nearest_depth(d0, fx, fy, x, y, h, w)
+                _warp_pixel(c0, d0, to0, s0, sd0, v0, x, y, h, w, gxn, gyn, kx, ky)
 
 
 @njit(**KERNEL)

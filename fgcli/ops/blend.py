@@ -38,6 +38,29 @@ def _agree(x, y, t_d):
     return (x == y).logical_or_((x - y).abs_() <= torch.minimum(x, y).mul_(t_d))
 
 
+def interp_blend_args(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target,
+                      alpha, t_d_rel, t_b):
+    """Validated arguments of blend_interp (shared by the numba kernel's wrapper):
+    (c0, c1, d0, d1, v0, v1, d_target, alpha, t_d_rel, t_b)."""
+    c0 = check_tensor(c0_sample, "c0_sample")
+    c1 = check_tensor(c1_sample, "c1_sample")
+    d0 = check_tensor(d0_sample, "d0_sample", 1)
+    d1 = check_tensor(d1_sample, "d1_sample", 1)
+    v0 = check_tensor(valid0, "valid0", 1, dtype_kind="bool")
+    v1 = check_tensor(valid1, "valid1", 1, dtype_kind="bool")
+    if d_target is not None:
+        d_target = check_tensor(d_target, "d_target", 1)
+    check_same(c0, "c0_sample", (c1, "c1_sample"), (d0, "d0_sample"), (d1, "d1_sample"),
+               (v0, "valid0"), (v1, "valid1"), (d_target, "d_target"))
+    if c0.shape != c1.shape:
+        raise ValueError(f"c1_sample: shape {tuple(c1.shape)} does not match c0_sample "
+                         f"{tuple(c0.shape)}")
+    a = check_alpha(alpha)
+    t_d = check_alpha(t_d_rel, "t_d_rel", 0.0, None)
+    tb = check_alpha(t_b, "t_b", 0.0, None)
+    return c0, c1, d0, d1, v0, v1, d_target, a, t_d, tb
+
+
 def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: torch.Tensor,
                  d1_sample: torch.Tensor, valid0: torch.Tensor, valid1: torch.Tensor,
                  d_target: torch.Tensor | None = None, alpha: float = 0.5,
@@ -79,22 +102,9 @@ def blend_interp(c0_sample: torch.Tensor, c1_sample: torch.Tensor, d0_sample: to
         return_depth, ``(colour, depth)`` where depth is exactly ``blend_interp_depth`` of
         the same inputs, computed from the same masks in one pass.
     """
-    c0 = check_tensor(c0_sample, "c0_sample")
-    c1 = check_tensor(c1_sample, "c1_sample")
-    d0 = check_tensor(d0_sample, "d0_sample", 1)
-    d1 = check_tensor(d1_sample, "d1_sample", 1)
-    v0 = check_tensor(valid0, "valid0", 1, dtype_kind="bool")
-    v1 = check_tensor(valid1, "valid1", 1, dtype_kind="bool")
-    if d_target is not None:
-        d_target = check_tensor(d_target, "d_target", 1)
-    check_same(c0, "c0_sample", (c1, "c1_sample"), (d0, "d0_sample"), (d1, "d1_sample"),
-               (v0, "valid0"), (v1, "valid1"), (d_target, "d_target"))
-    if c0.shape != c1.shape:
-        raise ValueError(f"c1_sample: shape {tuple(c1.shape)} does not match c0_sample "
-                         f"{tuple(c0.shape)}")
-    a = check_alpha(alpha)
-    t_d = check_alpha(t_d_rel, "t_d_rel", 0.0, None)
-    tb = check_alpha(t_b, "t_b", 0.0, None)
+    c0, c1, d0, d1, v0, v1, d_target, a, t_d, tb = interp_blend_args(
+        c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target, alpha, t_d_rel,
+        t_b)
     c0 = sanitize_values(c0)
     c1 = sanitize_values(c1)
     if (a == 0.0 or a == 1.0) and not return_depth:

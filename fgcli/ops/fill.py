@@ -111,6 +111,19 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
                        filled=filled, holes=holes)
 
 
+def gap_fill_args(result, depth_threshold_rel, fallback_mv, fallback_depth):
+    """Validated threshold and fallbacks of gap_fill (shared by the numba kernel's
+    wrapper): (depth_threshold_rel, fallback_mv, fallback_depth)."""
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    if fallback_mv is not None:
+        fallback_mv = check_tensor(fallback_mv, "fallback_mv", 2)
+        check_same(result.depth, "result.depth", (fallback_mv, "fallback_mv"))
+    if fallback_depth is not None:
+        fallback_depth = check_tensor(fallback_depth, "fallback_depth", 1)
+        check_same(result.depth, "result.depth", (fallback_depth, "fallback_depth"))
+    return thr, fallback_mv, fallback_depth
+
+
 def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str = "nearest",
              fallback_mv: torch.Tensor | None = None,
              fallback_depth: torch.Tensor | None = None) -> SplatResult:
@@ -148,13 +161,8 @@ def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str =
     """
     _check_result(result)
     check_choice(fill, "fill", ("nearest", "mean"))
-    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
-    if fallback_mv is not None:
-        fallback_mv = check_tensor(fallback_mv, "fallback_mv", 2)
-        check_same(result.depth, "result.depth", (fallback_mv, "fallback_mv"))
-    if fallback_depth is not None:
-        fallback_depth = check_tensor(fallback_depth, "fallback_depth", 1)
-        check_same(result.depth, "result.depth", (fallback_depth, "fallback_depth"))
+    thr, fallback_mv, fallback_depth = gap_fill_args(result, depth_threshold_rel, fallback_mv,
+                                                     fallback_depth)
     if result.depth.dim() == 4:
         return SplatResult.stack([
             _gap_fill_frame(result.frame(i), thr, fill,

@@ -86,8 +86,15 @@ def _structure(color: torch.Tensor, size: int) -> torch.Tensor:
     s = max(1, max(h, w) // size)
     if s > 1:
         luma = F.avg_pool2d(luma, s, s, ceil_mode=True)
-    blur = F.avg_pool2d(F.pad(luma, (3, 3, 3, 3), mode="replicate"), 7, 1)
-    return (luma - blur)[0, 0]
+    return _highpass(luma[0, 0])
+
+
+def _highpass(x: torch.Tensor) -> torch.Tensor:
+    """(h, w) map minus its 7x7 box blur (edge-replicated)."""
+    import torch.nn.functional as F
+
+    x = x[None, None]
+    return (x - F.avg_pool2d(F.pad(x, (3, 3, 3, 3), mode="replicate"), 7, 1))[0, 0]
 
 
 def structure_match(a: torch.Tensor, b: torch.Tensor, valid: torch.Tensor | None = None) -> float:
@@ -167,13 +174,7 @@ def _flow_match(c0: torch.Tensor, c1: torch.Tensor, size: int) -> float | None:
     wa = cv2.remap(a, gx + f[..., 0], gy + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     ta = torch.from_numpy(wa.astype(np.float32) / 255.0)
     tb = torch.from_numpy(b.astype(np.float32) / 255.0)
-    import torch.nn.functional as F
-
-    def hp(x):
-        x = x[None, None]
-        return (x - F.avg_pool2d(F.pad(x, (3, 3, 3, 3), mode="replicate"), 7, 1))[0, 0]
-
-    return structure_match(hp(ta), hp(tb))
+    return structure_match(_highpass(ta), _highpass(tb))
 
 
 def confirm_cut(c0: torch.Tensor, c1: torch.Tensor, mv1: torch.Tensor | None = None,

@@ -230,6 +230,23 @@ def _splat_frame(depth1, mv1, mv0, alpha, model, mode, depth0=None, depth0_tol=0
                        alpha=float(alpha), mode=mode)
 
 
+def splat_args(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel):
+    """Validated arguments of splat_motion (shared by the numba kernel's wrapper):
+    (depth1, mv1, mv0, depth0, depth0_tol_rel, alpha)."""
+    depth1 = check_tensor(depth1, "depth1", 1)
+    mv1 = check_tensor(mv1, "mv1", 2)
+    if mv0 is not None:
+        mv0 = check_tensor(mv0, "mv0", 2)
+    if depth0 is not None:
+        depth0 = check_tensor(depth0, "depth0", 1)
+    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"), (depth0, "depth0"))
+    tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
+    check_choice(model, "model", ("linear", "quadratic"))
+    check_choice(mode, "mode", ("interp", "extrap"))
+    a = check_alpha(alpha, hi=1.0 if mode == "interp" else ALPHA_MAX)
+    return depth1, mv1, mv0, depth0, tol, a
+
+
 def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | None,
                  alpha: float, model: str = "quadratic", mode: str = "interp",
                  depth0: torch.Tensor | None = None,
@@ -269,17 +286,8 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     Endpoints: interp alpha = 1 puts every pixel on itself (to1 = 0, to0 = mv1);
     interp alpha = 0 puts frame-1 surfaces at their frame-0 positions with to0 = 0.
     """
-    depth1 = check_tensor(depth1, "depth1", 1)
-    mv1 = check_tensor(mv1, "mv1", 2)
-    if mv0 is not None:
-        mv0 = check_tensor(mv0, "mv0", 2)
-    if depth0 is not None:
-        depth0 = check_tensor(depth0, "depth0", 1)
-    check_same(depth1, "depth1", (mv1, "mv1"), (mv0, "mv0"), (depth0, "depth0"))
-    tol = check_alpha(depth0_tol_rel, "depth0_tol_rel", 0.0, None)
-    check_choice(model, "model", ("linear", "quadratic"))
-    check_choice(mode, "mode", ("interp", "extrap"))
-    a = check_alpha(alpha, hi=1.0 if mode == "interp" else ALPHA_MAX)
+    depth1, mv1, mv0, depth0, tol, a = splat_args(depth1, mv1, mv0, alpha, model, mode,
+                                                  depth0, depth0_tol_rel)
     if (depth1.shape[-2] + 2) * (depth1.shape[-1] + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
     if depth1.dim() == 4:
