@@ -272,9 +272,12 @@ def _vector_median3(f: torch.Tensor) -> torch.Tensor:
     return torch.gather(nb, 0, best[None, None].expand(1, 2, h, w))[0]
 
 
-def _block_level(cur, prev, pred, block, search):
+def _block_level(cur, prev, pred, block, search, subpixel=False, keep=False):
     """One pyramid level: SAD block search around the prediction. cur, prev (h, w);
-    pred (2, nby, nbx) integer px -> (2, nby, nbx)."""
+    pred (2, nby, nbx) integer px -> (2, nby, nbx). subpixel: add the vertex of the
+    parabola through the SAD minimum and its two neighbours, per axis (|offset| <= 0.5 px;
+    0 at the window's edge, on a flat cost or on an exact match). keep: the integer vector
+    stays the prediction (only the sub-pixel refinement; needs search >= 2)."""
     h, w = cur.shape
     nby, nbx = pred.shape[-2:]
     dev = cur.device
@@ -305,13 +308,31 @@ def _block_level(cur, prev, pred, block, search):
     # ties go to the smallest offset (a static block stays static): exact integer keys
     cost = cost * 64 + (off[:, None] + off[None, :])  # (N, dy, dx)
     best = cost.view(cost.shape[0], -1).argmin(dim=1)
-    by = torch.div(best, n_off, rounding_mode="floor") - search
-    bx = best % n_off - search
-    return torch.stack([px + bx, py + by]).view(2, nby, nbx).to(torch.float32)
+    iy = torch.div(best, n_off, rounding_mode="floor")
+    ix = best % n_off
+    if keep:
+        iy = torch.full_like(iy, search)
+        ix = torch.full_like(ix, search)
+    out = torch.stack([px + ix - search, py + iy - search]).to(torch.float32)
+    if subpixel:
+        sad = torch.div(cost, 64, rounding_mode="floor").to(torch.float32)
+        n = torch.arange(sad.shape[0], device=dev)
+        for k, (i, other) in enumerate(((ix, iy), (iy, ix))):
+            lo = (i - 1).clamp(min=0)
+            hi = (i + 1).clamp(max=n_off - 1)
+            if k == 0:
+                cm, c0, cp = sad[n, other, lo], sad[n, other, i], sad[n, other, hi]
+            else:
+                cm, c0, cp = sad[n, lo, other], sad[n, i, other], sad[n, hi, other]
+            den = cm - 2.0 * c0 + cp
+            ok = (i > 0) & (i < n_off - 1) & (den > 0) & (c0 > 0)  # exact match: stays
+            d = torch.where(ok, (cm - cp) / (2.0 * den).clamp(min=1e-6), torch.zeros_like(den))
+            out[k] += d.clamp(-0.5, 0.5)
+    return out.view(2, nby, nbx)
 
 
 def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: int = 8,
-               search: int = 8, median: bool = True) -> torch.Tensor:
+               search: int = 8, median: bool = True, subpixel: bool = False) -> torch.Tensor:
     """FfxOpticalFlow-style luminance-pyramid block matching, frame 1 -> frame 0.
 
     A ``levels``-level pyramid (2x2 box averages) of the 8-bit luminances; from the
@@ -345,6 +366,14 @@ def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: i
             up = flow.repeat_interleave(2, 1).repeat_interleave(2, 2)
             pred = F.pad(up, (0, max(0, nbx - up.shape[2]), 0, max(0, nby - up.shape[1])),
                          mode="replicate")[:, :nby, :nbx] * 2.0
+        if lv == 0 and subpixel:
+            if median:  # the median runs on the integer field; the refinement comes after
+                flow = _vector_median3(_block_level(p1[lv][0], p0[lv][0], pred, block, search))
+                flow = _block_level(p1[lv][0], p0[lv][0], flow, block, 2, subpixel=True,
+                                    keep=True)
+            else:
+                flow = _block_level(p1[lv][0], p0[lv][0], pred, block, search, subpixel=True)
+            break
         flow = _block_level(p1[lv][0], p0[lv][0], pred, block, search)
         if median:
             flow = _vector_median3(flow)
@@ -464,9 +493,24 @@ def color_similarity(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> tor
     return torch.where(m <= eps, torch.ones_like(s), s)
 
 
+def encode_display(x: torch.Tensor) -> torch.Tensor:
+    """Linear -> display-encoded "back buffer" values: the sRGB OETF extended above 1
+    (``1.055 x^(1/2.4) - 0.055`` without clipping, so HDR values survive the round trip);
+    negatives -> 0."""
+    x = x.clamp(min=0.0)
+    hi = 1.055 * x.clamp(min=0.0031308).pow(1 / 2.4) - 0.055
+    return torch.where(x <= 0.0031308, x * 12.92, hi)
+
+
+def decode_display(v: torch.Tensor) -> torch.Tensor:
+    """Inverse of encode_display."""
+    v = v.clamp(min=0.0)
+    return torch.where(v <= 0.04045, v / 12.92, ((v.clamp(min=0.04045) + 0.055) / 1.055).pow(2.4))
+
+
 def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
                      mask_prev: torch.Tensor, mask_cur: torch.Tensor, alpha: float = 0.5,
-                     of_vec: torch.Tensor | None = None):
+                     of_vec: torch.Tensor | None = None, space: str = "linear"):
     """FSR 3 interpolation pass.
 
     Game path: ``P = color0(q + alpha v)``, ``C = color1(q - (1 - alpha) v)`` (bilinear),
@@ -494,6 +538,11 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
         of_vec = check_tensor(of_vec, "of_vec", 2, allow_batch=False)
     check_same(color0, "color0", (color1, "color1"), (vec, "vec"), (of_vec, "of_vec"))
     a = check_alpha(alpha)
+    if space not in ("linear", "display"):
+        raise ValueError(f"space: expected 'linear' or 'display', got {space!r}")
+    if space == "display":
+        color0 = encode_display(sanitize_values(color0))
+        color1 = encode_display(sanitize_values(color1))
     v = sanitize_mv(vec)
     P, in0 = backward_warp(color0, v * a)
     C, in1 = backward_warp(color1, v * -(1.0 - a))
@@ -514,6 +563,8 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
         bias = torch.nan_to_num(bias, nan=1.0).clamp(0.0, 1.0)
         bias = torch.where((x > 0) != (y > 0), torch.ones_like(bias), bias)
         out = torch.lerp(c_of, out, bias)
+    if space == "display":
+        out = decode_display(out)
     return sanitize_values(out), holes, bias
 
 

@@ -111,6 +111,11 @@ class FSR3OpticalFlow(Stage):
         Option("search", "int", 8, "search offsets -search..search-1 per level (block)",
                range=(1, 32)),
         Option("median", "bool", True, "3x3 vector-median filter per level (block)"),
+        Option("subpixel", "bool", False, "sub-pixel refinement at the finest level: parabola "
+               "vertex of the SAD around the integer vector, per axis (block)"),
+        Option("min_flow", "float", 0.0, "flow vectors this short or shorter (px) are zeroed "
+               "before the vector field (the FidelityFX SDK skips vectors of 1 px or less)",
+               range=(0.0, 64.0)),
     )
 
     def run(self, ctx):
@@ -125,7 +130,9 @@ class FSR3OpticalFlow(Stage):
             f = dis_flow(l0, l1)
         else:
             f = upsample_block_flow(block_flow(l0, l1, self.levels, 8, self.search,
-                                               self.median), h, w, 8)
+                                               self.median, self.subpixel), h, w, 8)
+        if self.min_flow > 0:
+            f = f * (f.norm(dim=0, keepdim=True) > self.min_flow)
         field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
         vec, prio, valid = unpack_vector_field(field)
         if not bool(valid.all()):
@@ -180,6 +187,10 @@ class FSR3Interpolate(Stage):
     inputs = ("color0", "color1", "game_mv", "mask_prev", "mask_cur", "depth_t", "alpha")
     optional_inputs = ("of_mv", "depth0", "depth1", "prev_time")
     outputs = ("color", "depth", "mv", "fsr3_holes", "fsr3_bias")
+    options = (Option("space", "choice", "linear", "colour space of the samples, the "
+                      "similarity and the lerps: linear, or display = the sRGB-encoded back "
+                      "buffers FSR 3 interpolates (extended above 1 for HDR, decoded after)",
+                      choices=("linear", "display")),)
 
     def run(self, ctx):
         import torch
@@ -191,7 +202,7 @@ class FSR3Interpolate(Stage):
         v = sanitize_mv(ctx["game_mv"])
         color, holes, bias = interpolate_fsr3(ctx["color0"], ctx["color1"], v,
                                               ctx["mask_prev"], ctx["mask_cur"], a,
-                                              ctx.get("of_mv"))
+                                              ctx.get("of_mv"), self.space)
         depth = sanitize_depth(ctx["depth_t"])
         if ctx.get("depth0") is not None and bool(torch.isinf(depth).any()):
             # nothing splatted there (and sky): the nearer of the two sampled depths
