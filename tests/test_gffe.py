@@ -334,3 +334,72 @@ def test_count_three_makes_three_frames_per_rendered_frame(tmp_path):
           "--count", "3", "--frames", "0-2x2", "--no-progress"])
     assert len([f for f in os.listdir(out) if f.endswith(".exr")]) == 6
     shutil.rmtree(out)
+
+
+def test_rigid_camera_model_is_exact_on_an_orbit_and_linear_is_not():
+    import math as _m
+
+    def orbit(deg):
+        a = _m.radians(deg)
+        pos = np.array([7 * _m.sin(a), 1.5, 7 * _m.cos(a)])
+        return look_at(pos, -pos + np.array([0, 0.5, 0]), [0, 1, 0])
+
+    p = np.eye(4)
+    v0, v1, v2 = orbit(0.0), orbit(8.0), orbit(12.0)
+    vr, _ = extrapolate_camera((v0, p), (v1, p), 0.5, model="rigid")
+    vl, _ = extrapolate_camera((v0, p), (v1, p), 0.5, model="linear")
+    assert np.allclose(vr, v2, atol=1e-9)
+    assert not np.allclose(vl, v2, atol=1e-4)
+    # pure translation: both models agree (Eq. 2 is exact there)
+    t0, t1 = look_at([0, 0, 5], [0, 0, -1], [0, 1, 0]), look_at([1, 0, 5], [0, 0, -1], [0, 1, 0])
+    a, _ = extrapolate_camera((t0, p), (t1, p), 0.5, model="rigid")
+    b, _ = extrapolate_camera((t0, p), (t1, p), 0.5, model="linear")
+    assert np.allclose(a, b, atol=1e-9)
+    with pytest.raises(ValueError):
+        extrapolate_camera((t0, p), (t1, p), 0.5, model="cubic")
+
+
+def test_reproject_fill_clamps_off_screen_points_to_the_edge():
+    from fgcli.ops.gffe import reproject_fill
+
+    H, W = 8, 16
+    p = np.array([[1.0, 0, 0, 0], [0, 2.0, 0, 0], [0, 0, -1.0001, -0.10001], [0, 0, -1.0, 0]])
+    v1 = look_at([0, 0, 0], [0, 0, -1], [0, 1, 0])
+    vx = look_at([-0.5, 0, 0], [0, 0, -1], [0, 1, 0])  # moved left: new content on the left
+    color1 = torch.rand(3, H, W)
+    depth1 = torch.full((1, H, W), 5.0)
+    valid = torch.ones(1, H, W, dtype=torch.bool)
+    valid[..., :2] = False
+    depth = torch.full((1, H, W), 5.0)
+    c, flow, took = reproject_fill(torch.zeros(3, H, W), valid, depth, color1, depth1,
+                                   (v1, p), (vx, p), offscreen="clamp")
+    assert bool(took[0, :, 0].all())
+    assert torch.allclose(c[:, :, 0], color1[:, :, 0], atol=1e-5)  # the edge column
+    _, _, took2 = reproject_fill(torch.zeros(3, H, W), valid, depth, color1, depth1,
+                                 (v1, p), (vx, p), offscreen="skip")
+    assert not bool(took2[0, :, 0].any())
+
+
+def test_first_frame_moving_pixels_stay_out_of_the_background():
+    H, W = 8, 8
+    p = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -1.0001, -0.10001], [0, 0, -1.0, 0]])
+    cam = (look_at([0, 0, 0], [0, 0, -1], [0, 1, 0]), p)
+    depth = torch.full((1, H, W), 5.0)
+    mv = torch.zeros(2, H, W)
+    mv[0, 2:4, 2:4] = 3.0
+    _, dyn = track_history(depth, mv, cam, None, None, None, 3, 0.5, "mv")
+    assert bool(dyn[0, 2:4, 2:4].all()) and int(dyn.sum()) == 4
+    bg = collect_background(torch.rand(3, H, W), depth, ~dyn, cam)
+    assert not bool(bg[0]["valid"][0, 2:4, 2:4].any())
+
+
+def test_edge_guard_marks_silhouettes_not_slanted_floors():
+    from fgcli.ops.gffe import _edge_pixels
+
+    ramp = (5.0 + 0.5 * torch.arange(8.0))[None, :, None].expand(1, 8, 8).contiguous()
+    none = torch.zeros(1, 8, 8, dtype=torch.bool)
+    assert not bool(_edge_pixels(ramp, none, 0.02).any())  # 10 % per row, but planar
+    step = torch.full((1, 8, 8), 10.0)
+    step[..., :4] = 2.0
+    e = _edge_pixels(step, none, 0.02)
+    assert bool(e[0, :, 4].all()) and not bool(e[0, :, 3].any()) and not bool(e[0, :, 6].any())

@@ -65,10 +65,56 @@ def look_at(pos, direction, up) -> np.ndarray:
     return m
 
 
-def extrapolate_camera(cam_prev, cam, alpha: float):
-    """Eq. 2: C~ = C + alpha (C - C_prev) per pose component (position, direction, up),
-    projection of the current camera. Returns (world_to_camera, projection) float64. Without
-    a previous camera, or when the pose did not change, the current matrices exactly."""
+def _hat(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _so3_exp(w):
+    th = float(np.linalg.norm(w))
+    k = _hat(w)
+    if th < 1e-12:
+        return np.eye(3) + k
+    return np.eye(3) + math.sin(th) / th * k + (1.0 - math.cos(th)) / th ** 2 * (k @ k)
+
+
+def _so3_log(r):
+    th = math.acos(float(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if th < 1e-9:
+        return 0.5 * v
+    if th > math.pi - 1e-6:  # half-turn: ill-conditioned axis; no sensible constant motion
+        raise ArithmeticError("camera turned by 180 degrees between frames")
+    return th / (2.0 * math.sin(th)) * v
+
+
+def _se3_v(w):
+    th = float(np.linalg.norm(w))
+    k = _hat(w)
+    if th < 1e-9:
+        return np.eye(3) + 0.5 * k
+    return np.eye(3) + (1.0 - math.cos(th)) / th ** 2 * k + (th - math.sin(th)) / th ** 3 * (k @ k)
+
+
+def se3_power(m, a: float) -> np.ndarray:
+    """m ** a for a rigid 4x4 transform m (screw motion: exp(a log m))."""
+    w = _so3_log(m[:3, :3])
+    u = np.linalg.solve(_se3_v(w), m[:3, 3])
+    out = np.eye(4)
+    out[:3, :3] = _so3_exp(a * w)
+    out[:3, 3] = _se3_v(a * w) @ (a * u)
+    return out
+
+
+def extrapolate_camera(cam_prev, cam, alpha: float, model: str = "linear"):
+    """Camera of the extrapolated frame, projection of the current camera.
+
+    model 'linear' = Eq. 2: C~ = C + alpha (C - C_prev) per pose component (position,
+    direction, up). model 'rigid' (fgen): the camera keeps its last relative rigid motion,
+    V~ = (V V_prev^-1)^alpha V (screw motion): exact for constant translation, orbits and
+    turns, where Eq. 2's chord leaves the arc (a 0.1 px error on the orbit scene).
+    Returns (world_to_camera, projection) float64. Without a previous camera, or when the
+    pose did not change, the current matrices exactly."""
+    check_choice(model, "model", ("linear", "rigid"))
     v1, p1 = _mats(cam)
     if cam_prev is None:
         return v1.copy(), p1.copy()
@@ -76,6 +122,17 @@ def extrapolate_camera(cam_prev, cam, alpha: float):
     if np.array_equal(v0, v1):
         return v1.copy(), p1.copy()
     a = check_alpha(alpha, hi=None)
+    if model == "rigid":
+        r0, r1 = v0[:3, :3], v1[:3, :3]
+        # only for orthonormal (rigid) view matrices; anything else falls back to Eq. 2
+        if np.allclose(r0 @ r0.T, np.eye(3), atol=1e-5) and \
+                np.allclose(r1 @ r1.T, np.eye(3), atol=1e-5):
+            try:
+                out = se3_power(v1 @ np.linalg.inv(v0), a) @ v1
+                if np.isfinite(out).all():
+                    return out, p1.copy()
+            except (ArithmeticError, np.linalg.LinAlgError):
+                pass
     (o0, d0, u0), (o1, d1, u1) = camera_pose(v0), camera_pose(v1)
     return look_at(o1 + a * (o1 - o0), d1 + a * (d1 - d0), u1 + a * (u1 - u0)), p1.copy()
 
@@ -193,7 +250,8 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     P_i = p. Without cam0 (first frame, empty history) every pixel passes as static
     (first_frame='static', the paper), or (first_frame='mv', fgen) pixels whose vector
     exceeds the threshold get P_i = the point seen at x' at the same depth with the same
-    camera (screen-space linear motion); the dynamic mask stays empty then.
+    camera (screen-space linear motion); the dynamic mask is then those
+    moving pixels (they stay out of the background layers).
 
     Args:
         depth1: (1, H, W) current depth. mv1: (2, H, W) current vectors (toward t-1).
@@ -226,6 +284,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
                 m = (moving & (p1[3] == p[3]))[None]
                 for i in range(1, k):
                     traj[i] = torch.where(m, p1, p)
+                dyn = moving[None]  # moving pixels stay out of the background layers
         return traj, dyn
     xh, yh, _, ok = project(p, cam0, (h, w))
     a = aux(h, w, depth1.device)
@@ -378,9 +437,28 @@ def _layer_fragments(layer, cam_from, cam_to, size, scale):
     return px, py, dn, ok & layer["valid"][0]
 
 
+def _edge_pixels(depth: torch.Tensor, dynamic: torch.Tensor, depth_tol: float) -> torch.Tensor:
+    """(1, H, W) bool: pixels whose color may carry a nearer surface (anti-aliased
+    silhouettes): a 3x3 neighbour is dynamic, or a 4-neighbour is nearer than the surface's
+    linear continuation (2 d - the opposite neighbour) by more than depth_tol (relative), so
+    slanted floors are no edges."""
+    d = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.full_like(depth, 1e30))[0]
+    p = torch.nn.functional.pad(d[None, None], (1, 1, 1, 1), value=1e30)[0, 0]
+    H, W = d.shape
+    nb = [p[1:H + 1, 0:W], p[1:H + 1, 2:W + 2], p[0:H, 1:W + 1], p[2:H + 2, 1:W + 1]]
+    edge = torch.zeros_like(d, dtype=torch.bool)
+    tol = 1.0 - float(depth_tol)
+    for a, b in ((nb[0], nb[1]), (nb[1], nb[0]), (nb[2], nb[3]), (nb[3], nb[2])):
+        # no opposite neighbour (border, sky): no continuation, no test
+        cont = torch.where(b < 1e29, 2.0 * d - b, torch.zeros_like(d)).clamp_min(0.0)
+        edge |= a < torch.minimum(cont, d) * tol
+    dyn = torch.nn.functional.max_pool2d(dynamic[None].float(), 3, 1, 1)[0] > 0
+    return edge[None] | dyn
+
+
 def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch.Tensor, cam1,
                        prev_layers: list | None = None, cam_prev=None,
-                       depth_tol: float = 0.02) -> list:
+                       depth_tol: float = 0.02, edge_guard: bool = False) -> list:
     """Layered background collection (Sec. 4.2, Fig. 5), L = 2: layer 0 full size, layer 1
     half width and height (a quarter of the pixels). Layers are registered to cam1's view.
 
@@ -404,6 +482,10 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     dev = depth1.device
     d1 = torch.nan_to_num(depth1, nan=0.0)
     usable = (d1 > 0) & static
+    guard = torch.zeros_like(usable)
+    if edge_guard:
+        guard = usable & _edge_pixels(d1, ~static, depth_tol)
+        usable = usable & ~guard
     l0 = {"color": torch.where(usable, color1, torch.zeros_like(color1)),
           "depth": torch.where(usable, d1, torch.full_like(d1, math.inf)), "valid": usable.clone()}
     l1 = empty_layer(h2, w2, dev)
@@ -422,7 +504,10 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     far0 = torch.nn.functional.max_pool2d(l0["depth"][None], 3, 1, 1)[0]
     at_depth = gather_pixels(far0, idx).view(H, W)
     at_d1 = gather_pixels(d1, idx).view(H, W)
-    case1 = inside & ~at_valid & ((dn > at_d1 * tol) | (at_d1 <= 0))
+    # a guarded pixel (silhouette) keeps the older fragment of the same surface
+    at_guard = gather_pixels(guard.float(), idx).view(H, W) > 0.5
+    case1 = inside & ~at_valid & ((dn > at_d1 * tol) | (at_d1 <= 0) |
+                                  (at_guard & (dn * tol >= at_d1)))
     case2 = inside & at_valid & (dn > at_depth * tol)
     src, dep = _splat_min(tx, ty, dn, case1, H, W)
     fill = (src >= 0)[None] & ~l0["valid"]
@@ -610,7 +695,8 @@ def push_pull_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
 
 
 def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
-                   depth1: torch.Tensor, cam1, cam_x, depth_tol: float = 0.05):
+                   depth1: torch.Tensor, cam1, cam_x, depth_tol: float = 0.05,
+                   offscreen: str = "clamp"):
     """Holes of the extrapolated frame read frame 1 through a proxy surface: the hole pixel's
     ray of cam_x at ``depth`` (the far-biased push-pull depth of its surroundings, i.e. the
     background) projected into frame 1, sampled bilinearly there, where frame 1 shows a
@@ -618,12 +704,19 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     fill: real background texture instead of a blur, as Mob-FGSR's background-vector rule.
 
     Args: color (3, H, W), valid (1, H, W) bool, depth (1, H, W) filled depth of the
-    extrapolated frame; color1, depth1 frame 1; cams. Returns (color, mv toward frame 1,
-    took (1, H, W) bool: holes filled this way)."""
+    extrapolated frame; color1, depth1 frame 1; cams. offscreen: 'clamp' reads a point that
+    frame 1 does not show (out-of-screen disocclusion, no rendered border) at the nearest
+    edge pixel (edge extension, as a backward warp with clamped addressing does), 'skip'
+    leaves it to the push-pull. Returns (color, mv toward frame 1, took (1, H, W) bool:
+    holes filled this way)."""
+    check_choice(offscreen, "offscreen", ("clamp", "skip"))
     H, W = color.shape[-2:]
     a = aux(H, W, color.device)
     X = unproject(depth, cam_x)
     px, py, _, ok = project(X, cam1, (H, W))
+    if offscreen == "clamp":
+        px = torch.where(ok, px.clamp(0.5, W - 0.5), px)
+        py = torch.where(ok, py.clamp(0.5, H - 0.5), py)
     idx, inside = _sample_nearest_idx(px, py, H, W)
     d1 = torch.nan_to_num(depth1, nan=0.0)
     seen = gather_pixels(d1, idx).view(H, W)

@@ -106,11 +106,15 @@ class GffeHistory(Stage):
 @register
 class GffeCamera(Stage):
     name = "gffe_camera"
-    help = "GFFE Eq. 2: extrapolated camera C + alpha (C - C_prev) per pose component."
+    help = ("Camera of the extrapolated frame: model=linear is GFFE Eq. 2, C + alpha "
+            "(C - C_prev) per pose component; model=rigid (fgen, default) keeps the last "
+            "relative rigid motion (screw motion), exact on orbits and turns. The adaptive "
+            "window uses the same camera.")
     inputs = ("alpha",)
     optional_inputs = ("camera0", "camera1")
     outputs = ("camera_x",)
-    options = ()
+    options = (Option("model", "choice", "rigid", "linear: Eq. 2 (the paper); rigid: "
+                      "constant relative rigid motion (fgen)", choices=("linear", "rigid")),)
 
     def needed(self, ctx, facts):
         _need_camera(ctx, self.name)
@@ -126,7 +130,8 @@ class GffeCamera(Stage):
     def run(self, ctx):
         from fgcli.ops.gffe import extrapolate_camera
 
-        return {"camera_x": extrapolate_camera(ctx["camera0"], ctx["camera1"], ctx["alpha"])}
+        return {"camera_x": extrapolate_camera(ctx["camera0"], ctx["camera1"], ctx["alpha"],
+                                               self.model)}
 
 
 @register
@@ -246,7 +251,10 @@ class GffeBackgroundCollect(Stage):
     optional_inputs = ("camera1", "state", "number1")
     outputs = ("bg",)
     options = (Option("depth_tol", "float", 0.02, "relative depth margin for 'deeper'",
-                      range=(0.0, 10.0)),)
+                      range=(0.0, 10.0)),
+               Option("edge_guard", "bool", False, "keep silhouette pixels (next to a dynamic "
+                      "pixel or to a nearer depth edge; their anti-aliased color mixes the "
+                      "occluder in) out of layer 0, holding the older fragment there (fgen)"))
     history = None
 
     def needed(self, ctx, facts):
@@ -267,7 +275,7 @@ class GffeBackgroundCollect(Stage):
         if prev is not None and tuple(prev[0]["depth"].shape[-2:]) != tuple(d1.shape[-2:]):
             prev = None
         bg = collect_background(ctx["color1"], d1, ~ctx["dynamic"], ctx["camera1"], prev,
-                                cam_prev, self.depth_tol)
+                                cam_prev, self.depth_tol, self.edge_guard)
         s.update(bg=bg, bg_camera=ctx["camera1"], bg_frame=_frame_id(ctx))
         return {"bg": bg}
 
@@ -322,6 +330,10 @@ class GffeHoleFill(Stage):
                "push-pull", range=(-1.0, 1.0)),
         Option("mode", "choice", "reproject", "reproject (frame 1 through the background "
                "proxy depth, else push-pull) or push_pull", choices=("reproject", "push_pull")),
+        Option("offscreen", "choice", "clamp", "reproject: a point off frame 1's screen "
+               "(out-of-screen disocclusion without a rendered border) reads the nearest "
+               "edge pixel (clamp, fgen) or is left to the push-pull (skip)",
+               choices=("clamp", "skip")),
     )
 
     def needed(self, ctx, facts):
@@ -343,6 +355,7 @@ class GffeHoleFill(Stage):
         if self.mode == "reproject" and ctx.get("camera1") is not None \
                 and ctx.get("camera_x") is not None:
             c, flow, took = reproject_fill(c, v, d, ctx["color1"], ctx["depth1"],
-                                           ctx["camera1"], ctx["camera_x"])
+                                           ctx["camera1"], ctx["camera_x"],
+                                           offscreen=self.offscreen)
             mv = torch.where(took, flow, mv)
         return {"color": c, "depth": d, "mv": mv, "holes": int((~v).sum())}
