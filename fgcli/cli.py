@@ -21,6 +21,7 @@ COMMANDS = {
     "interpolate": "Generate frames between rendered frames.",
     "extrapolate": "Generate frames past each rendered frame.",
     "eval": "Score pipelines against ground truth: quality and milliseconds.",
+    "train": "Train a network on data rendered from random scenes.",
     "pipelines": "List the available pipelines.",
     "describe": "Show a pipeline's stages or a stage's options.",
 }

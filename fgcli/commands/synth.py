@@ -49,8 +49,13 @@ def _scene_files(paths) -> list[str]:
 @click.option("--preview", "preview", type=click.Path(dir_okay=False),
               help="Write a PNG contact sheet of the given scenes (files or folders of "
                    "*.toml) instead of rendering sequences.")
+@click.option("--random", "random_seed", type=click.IntRange(min=0), metavar="SEED",
+              help="Render the random scene SEED (random objects, textures, motions, camera "
+                   "path, lights; what `fgen train` renders its data from) instead of a scene "
+                   "file: `fgen synth --random 7 OUT/`. Default size 256x144.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, no_progress):
+def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, random_seed,
+        no_progress):
     """Render procedural scene SCENE.toml into OUT/ (fgen layout + cameras.json).
 
     Frame numbers live on one timeline at the finer rate: with --gt and --gt-factor K the
@@ -61,6 +66,7 @@ def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, no
     \b
     fgen synth sample_data/scenes/orbit.toml out/orbit --gt out/orbit_gt
     fgen synth --preview sheet.png sample_data/scenes/
+    fgen synth --random 7 out/random7 --gt out/random7_gt
     """
     from fgcli.synth import load_scene
 
@@ -72,14 +78,23 @@ def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, no
         w, h = write_contact_sheet(scenes, preview, spp=spp)
         click.echo(f"wrote {preview} ({w}x{h}, {len(scenes)} scene(s))")
         return
-    if len(paths) != 2:
-        raise UsageError("expected SCENE.toml and OUT/ (or --preview PNG with scene files)")
-    scene_path, out = paths
-    if os.path.isdir(scene_path):
-        raise InputError("expected a scene file, got a folder", file=scene_path)
+    if random_seed is not None:
+        if len(paths) != 1:
+            raise UsageError("with --random give only OUT/")
+        from fgcli.synth import random_scene
+
+        out = paths[0]
+        scene = load_scene(random_scene(random_seed, size=size or (256, 144)), fps=fps,
+                           frames=frames)
+    else:
+        if len(paths) != 2:
+            raise UsageError("expected SCENE.toml and OUT/ (or --preview PNG with scene files)")
+        scene_path, out = paths
+        if os.path.isdir(scene_path):
+            raise InputError("expected a scene file, got a folder", file=scene_path)
+        scene = load_scene(scene_path, size=size, fps=fps, frames=frames)
     from fgcli.synth.sequence import render_sequence
 
-    scene = load_scene(scene_path, size=size, fps=fps, frames=frames)
     res = render_sequence(scene, out, gt_dir=gt_dir, gt_factor=gt_factor,
                           progress=not no_progress, overwrite=overwrite, spp=spp)
     n = res["input"] + res["gt"]

@@ -1,0 +1,47 @@
+"""Export trained weights for shipping: an ONNX graph of the network core (onnxruntime, the
+CPU default; the full-resolution warps and Eq. 5 around it run as torch ops) and the torch
+state dict (the CUDA path), both in the package (fgcli/nets/weights/)."""
+from __future__ import annotations
+
+import os
+
+import torch
+
+WEIGHTS_DIR = os.path.join(os.path.dirname(__file__), "weights")
+OPSET = 17
+
+
+def export_mvinterp(checkpoint: str, dest: str = WEIGHTS_DIR, name: str = "mv-interp") -> dict:
+    """Write <dest>/<name>.onnx and <dest>/<name>.pt (state dict + widths, float32) from a
+    training checkpoint (best.pt or last.pt). Returns the paths and sizes."""
+    import warnings
+
+    from fgcli.io.atomic import make_temp, replace
+    from fgcli.nets.mvinterp import MVInterpCore, MVInterpNet
+
+    ck = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    widths = tuple(ck["meta"]["config"]["widths"])
+    net = MVInterpNet(widths).eval()
+    net.load_state_dict(ck["model"])
+    os.makedirs(dest, exist_ok=True)
+    pt = os.path.join(dest, f"{name}.pt")
+    onnx_path = os.path.join(dest, f"{name}.onnx")
+    info = {"widths": list(widths), "step": int(ck["step"]),
+            "score": float(ck.get("score", float("nan"))), "task": ck["meta"]["task"]}
+    tmp = make_temp(dest, ".pt")
+    torch.save({"model": net.state_dict(), "info": info}, tmp)
+    replace(tmp, pt)
+    x = torch.rand(1, 3, 64, 96)
+    g = torch.zeros(1, 2, 64, 96)
+    t = torch.full((1, 1, 1, 1), 0.5)
+    tmp = make_temp(dest, ".onnx")
+    ins = ["x0", "x1", "w0", "w1", "g0", "g1", "cue", "t"]
+    outs = ["f0", "f1", "mask", "residual"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(MVInterpCore(net), (x, x, x, x, g, g, g, t), tmp, dynamo=False,
+                          opset_version=OPSET, input_names=ins, output_names=outs,
+                          dynamic_axes={k: {2: "H", 3: "W"} for k in ins[:-1] + outs})
+    replace(tmp, onnx_path)
+    return {"onnx": onnx_path, "pt": pt, "onnx_bytes": os.path.getsize(onnx_path),
+            "pt_bytes": os.path.getsize(pt), **info}

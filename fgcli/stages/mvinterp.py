@@ -1,0 +1,115 @@
+"""mv-interp stages (pipelines/mv-interp.toml): guiding flows from frame 1's splatted
+vectors and the trained network (fgcli.nets), with the network-off warp of the ablation."""
+from __future__ import annotations
+
+from fgcli.stages.base import Option, Stage, register
+
+
+@register
+class Guide(Stage):
+    name = "guide"
+    help = ("mv-interp guiding flows (seed 000 §3.1, splat 'following Mob-FGSR'): the "
+            "Mob-FGSR motion chain (dilate, quadratic splat, gap fill, holes from frame 0's "
+            "vectors; linear and frame 1's vectors without them) and the cue channels "
+            "(depth ratio of the guided samples, holes; fgen extension).")
+    inputs = ("depth1", "mv1", "alpha")
+    optional_inputs = ("mv0", "depth0")
+    outputs = ("guide0", "guide1", "guide_cue")
+
+    def needed(self, ctx, facts):
+        if not facts["any_motion"]:
+            return False, "no motion: zero guiding flows"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        d = ctx["depth1"]
+        z = torch.zeros(2, *d.shape[-2:], dtype=torch.float32, device=d.device)
+        return {"guide0": z, "guide1": z.clone(), "guide_cue": self._cue(ctx, z, z, None)}
+
+    @staticmethod
+    def _cue(ctx, g0, g1, holes):
+        import torch
+
+        from fgcli.ops.mvinterp import guide_cues
+
+        d1 = ctx["depth1"]
+        d0 = ctx.get("depth0") if ctx.get("depth0") is not None else d1
+        if holes is None:
+            holes = torch.zeros(1, *d1.shape[-2:], dtype=torch.bool, device=d1.device)
+        return guide_cues(d0, d1, g0, g1, holes)
+
+    def run(self, ctx):
+        from fgcli.ops.mvinterp import guiding_flows
+
+        mv0 = ctx.get("mv0")
+        g0, g1, holes = guiding_flows(ctx["depth1"], ctx["mv1"], ctx["alpha"], mv0,
+                                      ctx.get("depth0") if mv0 is not None else None)
+        return {"guide0": g0, "guide1": g1, "guide_cue": self._cue(ctx, g0, g1, holes)}
+
+
+def _depth_and_mv(ctx, f0, f1, alpha):
+    """Depth of the generated frame (the nearer of the two samples along the final flows)
+    and its vectors toward the previous output time (f0 scaled to that time)."""
+    import torch
+
+    from fgcli.ops import sample_nearest, sanitize_depth
+
+    d0, _ = sample_nearest(sanitize_depth(ctx["depth0"]), f0)
+    d1, _ = sample_nearest(sanitize_depth(ctx["depth1"]), f1)
+    depth = torch.minimum(d0, d1)
+    prev = float(ctx.get("prev_time") or 0.0)
+    mv = f0 * ((alpha - prev) / alpha) if (alpha > 0 and prev > 0) else f0
+    return depth, mv
+
+
+@register
+class MVInterpNet(Stage):
+    name = "mvinterp_net"
+    help = ("mv-interp network (seed 000): motion context encoder on both frames warped by "
+            "the guiding flows, image pyramid encoder, four IFRNet decoders with f_bar = m + "
+            "f, Eq. 5 synthesis. Shipped weights (fgcli/nets/weights), onnxruntime on CPU, "
+            "torch on CUDA.")
+    inputs = ("color0", "color1", "depth0", "depth1", "alpha")
+    optional_inputs = ("guide0", "guide1", "guide_cue", "prev_time")
+    outputs = ("color", "depth", "mv")
+    options = (
+        Option("network", "bool", True, "off: the ablation without the network, both frames "
+               "backward-warped by the guiding flows and blended by time"),
+        Option("backend", "choice", "auto", "auto = onnxruntime on CPU, torch on CUDA",
+               choices=("auto", "onnx", "torch")),
+        Option("weights", "str", "mv-interp", "weights name in fgcli/nets/weights"),
+    )
+
+    def run(self, ctx):
+        import torch
+        import torch.nn.functional as F
+
+        from fgcli.nets.mvinterp import MULTIPLE
+        from fgcli.nets.runtime import run_mvinterp
+        from fgcli.ops import sanitize_mv, sanitize_values
+
+        a = float(ctx["alpha"])
+        c0, c1 = sanitize_values(ctx["color0"]), sanitize_values(ctx["color1"])
+        if ctx.get("guide0") is None:  # guide stage off: the plain IFRNet-style ablation
+            g0 = g1 = torch.zeros(2, *c0.shape[-2:], dtype=torch.float32, device=c0.device)
+            cue = torch.zeros_like(g0)
+        else:
+            g0, g1 = sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"])
+            cue = ctx["guide_cue"]
+        if not self.network:
+            from fgcli.ops.mvinterp import guide_warp
+
+            depth, mv = _depth_and_mv(ctx, g0, g1, a)
+            return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
+        H, W = c0.shape[-2:]
+        ph, pw = (-H) % MULTIPLE, (-W) % MULTIPLE
+        x = [v[None] for v in (c0, c1, g0, g1, cue)]
+        if ph or pw:
+            # replicate padding (reflect needs the size to exceed the pad: 1x1 inputs)
+            x = [F.pad(v, (0, pw, 0, ph), mode="replicate") for v in x]
+        color, f0, f1, mask = run_mvinterp(*x, a, backend=self.backend, name=self.weights)
+        color, f0, f1, mask = (v[0, :, :H, :W] for v in (color, f0, f1, mask))
+        depth, mv = _depth_and_mv(ctx, f0, f1, a)
+        return {"color": color.clamp_min(0.0), "depth": depth, "mv": mv}
