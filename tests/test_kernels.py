@@ -16,7 +16,6 @@ within 1e-5 of t_b may pick the other case of Eq. 1; such pixels are excluded.
 """
 from __future__ import annotations
 
-import math
 import os
 import subprocess
 import sys

@@ -3,8 +3,6 @@ training loop (seeded, resumable), the pipeline end to end on odd sizes and 1x1.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
