@@ -41,6 +41,11 @@ def _widths(ctx, param, value):
 @click.option("--patch", type=click.IntRange(min=32), default=128, show_default=True)
 @click.option("--widths", callback=_widths, help="Encoder widths per level "
               "(default 16,24,32,48).")
+@click.option("--no-guides", is_flag=True, help="Train without guiding flows (zero guides "
+              "and cue channels): the plain IFRNet-style ablation of the paper; run it with "
+              "--variant mv-interp:guide=off,weights=<exported name>.")
+@click.option("--name", default="mv-interp", show_default=True,
+              help="File name of the exported weights (fgcli/nets/weights/<name>.onnx/.pt).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=1), help="CPU threads (default: all).")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False),
@@ -48,7 +53,7 @@ def _widths(ctx, param, value):
                    "(the shipped weights live in fgcli/nets/weights/).")
 @click.option("--no-progress", is_flag=True)
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
-        seed, threads, export_dir, no_progress):
+        no_guides, name, seed, threads, export_dir, no_progress):
     """Train NETWORK on data rendered from random scenes (never the evaluation scenes).
 
     \b
@@ -74,7 +79,7 @@ def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch,
     from fgcli.nets.mvinterp_train import MVInterpTask
 
     task = MVInterpTask(tr, va, widths=widths, patch=patch, batch=batch, limit=scenes,
-                        val_limit=val_scenes, seed=seed)
+                        val_limit=val_scenes, seed=seed, guides=not no_guides)
     res = train(task, run_dir, steps, lr=lr, seed=seed, progress=not no_progress,
                 log=lambda m: click.echo(m, err=True))
     click.echo(f"trained {res['steps']} steps in {res['seconds']:.0f} s; best validation "
@@ -82,6 +87,6 @@ def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch,
     if export_dir:
         from fgcli.nets.export import export_mvinterp
 
-        info = export_mvinterp(os.path.join(run_dir, "best.pt"), export_dir)
+        info = export_mvinterp(os.path.join(run_dir, "best.pt"), export_dir, name=name)
         click.echo(f"exported step {info['step']} to {info['onnx']} "
                    f"({info['onnx_bytes'] / 1e6:.1f} MB) and {info['pt']}")

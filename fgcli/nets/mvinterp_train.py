@@ -40,10 +40,13 @@ class MVInterpTask:
 
     def __init__(self, train_dir: str, val_dir: str, widths=None, patch: int = 128,
                  batch: int = 8, limit: int | None = None, val_limit: int | None = None,
-                 seed: int = 0):
+                 seed: int = 0, guides: bool = True):
         from fgcli.nets.mvinterp import DEFAULT_WIDTHS, MVInterpNet
 
         self.widths = tuple(widths or DEFAULT_WIDTHS)
+        # guides False: the paper's ablation without guiding flows (plain IFRNet-style):
+        # zero guides and cue channels in training, validation and at run time
+        self.guides = bool(guides)
         self.patch, self.batch_size = int(patch), int(batch)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)  # the initial weights depend on the seed only
@@ -54,7 +57,8 @@ class MVInterpTask:
 
     def config(self) -> dict:
         return {"widths": list(self.widths), "patch": self.patch, "batch": self.batch_size,
-                "samples": self.n_train, "augment": "flip,reverse"}
+                "samples": self.n_train, "augment": "flip,reverse",
+                **({} if self.guides else {"guides": False})}
 
     def batch(self, seed: int, step: int) -> dict:
         rng = np.random.default_rng([seed, step, 11])
@@ -95,7 +99,11 @@ class MVInterpTask:
                             ("cue", cue)):
                 cols[name].append(v)
             cols["t"].append(torch.full((1, 1, 1), t))
-        return {k: torch.stack(v) for k, v in cols.items()}
+        out = {k: torch.stack(v) for k, v in cols.items()}
+        if not self.guides:
+            for k in ("g0", "g1", "cue"):
+                out[k] = torch.zeros_like(out[k])
+        return out
 
     def loss(self, model, b) -> dict:
         from fgcli.nets.blocks import census, charbonnier
@@ -115,6 +123,8 @@ class MVInterpTask:
             for k, tau in enumerate(s["taus"]):
                 g0, g1 = torch.from_numpy(s["g0"][k]), torch.from_numpy(s["g1"][k])
                 cue = torch.from_numpy(s["cue"][k].astype(np.float32))
+                if not self.guides:
+                    g0, g1, cue = (torch.zeros_like(v) for v in (g0, g1, cue))
                 gt = torch.from_numpy(s["gt"][k].astype(np.float32))
                 out = model(c0[None].to(dev), c1[None].to(dev), g0[None].to(dev),
                             g1[None].to(dev), cue[None].to(dev),

@@ -64,13 +64,24 @@ def _depth_and_mv(ctx, f0, f1, alpha):
     return depth, mv
 
 
+TRAINED_TAUS = (0.25, 0.75)  # the shipped weights saw tau in {0.25, 0.5, 0.75}
+
+
+def trained_weight(alpha: float) -> float:
+    """Weight of the network's frame at time alpha: 1 on the trained range [0.25, 0.75],
+    falling linearly to 0 at alpha 0 and 1, where the guided warp takes over (a network
+    asked for times it never saw does not converge to the rendered frames)."""
+    return max(0.0, min(1.0, min(alpha, 1.0 - alpha) / TRAINED_TAUS[0]))
+
+
 @register
 class MVInterpNet(Stage):
     name = "mvinterp_net"
     help = ("mv-interp network (seed 000): motion context encoder on both frames warped by "
             "the guiding flows, image pyramid encoder, four IFRNet decoders with f_bar = m + "
             "f, Eq. 5 synthesis. Shipped weights (fgcli/nets/weights), onnxruntime on CPU, "
-            "torch on CUDA.")
+            "torch on CUDA. Trained at alpha 0.25-0.75: outside it the frame fades linearly "
+            "to the guided warp (fgen rule).")
     inputs = ("color0", "color1", "depth0", "depth1", "alpha")
     optional_inputs = ("guide0", "guide1", "guide_cue", "prev_time")
     outputs = ("color", "depth", "mv")
@@ -81,6 +92,43 @@ class MVInterpNet(Stage):
                choices=("auto", "onnx", "torch")),
         Option("weights", "str", "mv-interp", "weights name in fgcli/nets/weights"),
     )
+
+    def needed(self, ctx, facts):
+        import torch
+
+        a = float(ctx["alpha"])
+        if a <= 0.0 or a >= 1.0:
+            return False, "alpha at a rendered frame: the guided warp is that frame"
+        if not facts["any_motion"] and torch.equal(ctx["color0"], ctx["color1"]):
+            return False, "no motion and identical frames: the frame itself"
+        return True, ""
+
+    def skip(self, ctx):
+        import torch
+
+        from fgcli.ops import sanitize_values
+
+        if torch.equal(ctx["color0"], ctx["color1"]) and float(ctx["alpha"]) > 0.0:
+            z = torch.zeros(2, *ctx["color1"].shape[-2:], dtype=torch.float32,
+                            device=ctx["color1"].device)
+            depth, mv = _depth_and_mv(ctx, z, z, float(ctx["alpha"]))
+            return {"color": sanitize_values(ctx["color1"]), "depth": depth, "mv": mv}
+        return self._warp_only(ctx)
+
+    def _warp_only(self, ctx):
+        import torch
+
+        from fgcli.ops import sanitize_mv, sanitize_values
+        from fgcli.ops.mvinterp import guide_warp
+
+        a = float(ctx["alpha"])
+        c0, c1 = sanitize_values(ctx["color0"]), sanitize_values(ctx["color1"])
+        if ctx.get("guide0") is None:
+            g0 = g1 = torch.zeros(2, *c0.shape[-2:], dtype=torch.float32, device=c0.device)
+        else:
+            g0, g1 = sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"])
+        depth, mv = _depth_and_mv(ctx, g0, g1, a)
+        return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
 
     def run(self, ctx):
         import torch
@@ -99,10 +147,7 @@ class MVInterpNet(Stage):
             g0, g1 = sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"])
             cue = ctx["guide_cue"]
         if not self.network:
-            from fgcli.ops.mvinterp import guide_warp
-
-            depth, mv = _depth_and_mv(ctx, g0, g1, a)
-            return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
+            return self._warp_only(ctx)
         H, W = c0.shape[-2:]
         ph, pw = (-H) % MULTIPLE, (-W) % MULTIPLE
         x = [v[None] for v in (c0, c1, g0, g1, cue)]
@@ -111,5 +156,15 @@ class MVInterpNet(Stage):
             x = [F.pad(v, (0, pw, 0, ph), mode="replicate") for v in x]
         color, f0, f1, mask = run_mvinterp(*x, a, backend=self.backend, name=self.weights)
         color, f0, f1, mask = (v[0, :, :H, :W] for v in (color, f0, f1, mask))
+        color = color.clamp_min(0.0)
+        w = trained_weight(a)
+        if w < 1.0:
+            # outside the times the weights were trained at, fade to the guided warp (which
+            # reaches the rendered frames at alpha 0 and 1)
+            from fgcli.ops.mvinterp import guide_warp
+
+            color = w * color + (1.0 - w) * guide_warp(c0, c1, g0, g1, a)
+            f0 = w * f0 + (1.0 - w) * g0
+            f1 = w * f1 + (1.0 - w) * g1
         depth, mv = _depth_and_mv(ctx, f0, f1, a)
-        return {"color": color.clamp_min(0.0), "depth": depth, "mv": mv}
+        return {"color": color, "depth": depth, "mv": mv}
