@@ -287,3 +287,15 @@ def test_export_roundtrip(tiny_data, tmp_path):
         assert torch.allclose(x, y, atol=2e-3, rtol=1e-3)
     # trained for 3 steps at a high rate: no longer the untrained even blend
     assert not torch.all(b[3] == 0.5)
+
+
+def test_noguide_ablation_weights_run():
+    from fgcli import pipeline as pl
+    from fgcli.runner import make_ctx
+
+    f0, f1 = _frames(17, 29, sky=True)
+    p = pl.load("mv-interp:guide=off,weights=mv-interp-noguide")
+    tm = pl.Timings()
+    ctx = pl.run_stages(p.build("interp"), make_ctx(f0, f1, 0.5, "interp"), tm, label="1")
+    assert "guide" not in tm.summary()["stages"]
+    assert ctx["color"].shape == (3, 17, 29) and torch.isfinite(ctx["color"]).all()
