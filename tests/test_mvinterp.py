@@ -299,3 +299,17 @@ def test_noguide_ablation_weights_run():
     ctx = pl.run_stages(p.build("interp"), make_ctx(f0, f1, 0.5, "interp"), tm, label="1")
     assert "guide" not in tm.summary()["stages"]
     assert ctx["color"].shape == (3, 17, 29) and torch.isfinite(ctx["color"]).all()
+
+
+def test_shading_only_scenes_move_only_the_light():
+    from fgcli.nets.data import shading_only
+    from fgcli.synth import load_scene, random_scene, render
+
+    for seed in (0, 5):
+        spec = shading_only(random_scene(seed, size=(48, 32), frames=3), np.random.default_rng(1))
+        assert spec["camera"]["type"] == "static"
+        assert all(o["motion"] == {"type": "static"} and "spin" not in o for o in spec["objects"])
+        assert all("motion" in lt for lt in spec["lights"])
+        scene = load_scene(spec)
+        f = render(scene, 1.0, 0.0, spp=1)
+        assert float(f.mv.abs().max()) < 1e-3  # static geometry: (numerically) zero vectors

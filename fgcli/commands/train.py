@@ -46,6 +46,11 @@ def _widths(ctx, param, value):
               "--variant mv-interp:guide=off,weights=<exported name>.")
 @click.option("--name", default="mv-interp", show_default=True,
               help="File name of the exported weights (fgcli/nets/weights/<name>.onnx/.pt).")
+@click.option("--light-scenes", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Also render and train on this many shading-only random scenes (static "
+                   "geometry and camera, moving lights; seeds from 2,000,000).")
+@click.option("--init", type=click.Path(dir_okay=False, exists=True),
+              help="Start a new run from this checkpoint's weights (fine-tuning).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=1), help="CPU threads (default: all).")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False),
@@ -53,7 +58,7 @@ def _widths(ctx, param, value):
                    "(the shipped weights live in fgcli/nets/weights/).")
 @click.option("--no-progress", is_flag=True)
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
-        no_guides, name, seed, threads, export_dir, no_progress):
+        no_guides, name, light_scenes, init, seed, threads, export_dir, no_progress):
     """Train NETWORK on data rendered from random scenes (never the evaluation scenes).
 
     \b
@@ -76,12 +81,20 @@ def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch,
     make_samples(va, range(HELDOUT_SEEDS[0], HELDOUT_SEEDS[0] + val_scenes),
                  progress=not no_progress)
     make_samples(tr, range(scenes), progress=not no_progress)
+    extra = []
+    if light_scenes:
+        from fgcli.nets.data import LIGHT_SEEDS
+
+        extra.append(os.path.join(data_dir, "train_light"))
+        make_samples(extra[0], range(LIGHT_SEEDS[0], LIGHT_SEEDS[0] + light_scenes),
+                     progress=not no_progress)
     from fgcli.nets.mvinterp_train import MVInterpTask
 
     task = MVInterpTask(tr, va, widths=widths, patch=patch, batch=batch, limit=scenes,
-                        val_limit=val_scenes, seed=seed, guides=not no_guides)
+                        val_limit=val_scenes, seed=seed, guides=not no_guides,
+                        extra_dirs=extra)
     res = train(task, run_dir, steps, lr=lr, seed=seed, progress=not no_progress,
-                log=lambda m: click.echo(m, err=True))
+                log=lambda m: click.echo(m, err=True), init=init)
     click.echo(f"trained {res['steps']} steps in {res['seconds']:.0f} s; best validation "
                f"PSNR {res['best']:.3f} dB")
     if export_dir:

@@ -25,8 +25,45 @@ def sample_path(folder: str, seed: int) -> str:
     return os.path.join(folder, f"s{seed:07d}.npz")
 
 
+LIGHT_SEEDS = (2_000_000, 2_100_000)  # shading-only scenes (static geometry, moving lights)
+
+
+def shading_only(spec: dict, rng) -> dict:
+    """The same random scene with a static camera and static objects, and moving lights:
+    only the shading changes (shadows sweep, highlights slide), every vector is zero."""
+    import copy
+
+    spec = copy.deepcopy(spec)
+    cam = spec["camera"]
+    if cam["type"] != "static":
+        pos = cam.get("position") or [cam.get("radius", 6.0) * np.sin(np.radians(cam.get(
+            "angle", 0.0))), cam.get("height", 2.0), cam.get("radius", 6.0) * np.cos(
+            np.radians(cam.get("angle", 0.0)))]
+        if cam["type"] == "keyframes":
+            pos = cam["keys"][0]["position"]
+        spec["camera"] = {"type": "static", "position": pos, "target": [0.0, 0.6, 0.0],
+                          "fov": cam["fov"]}
+    for ob in spec["objects"]:
+        ob["motion"] = {"type": "static"}
+        ob.pop("spin", None)
+        if "texture" in ob:
+            ob["texture"].pop("scroll", None)
+    spec["effects"] = [e for e in spec["effects"] if e != "texture_animation"]
+    if "shadows" not in spec["effects"]:
+        spec["effects"].append("shadows")
+    lights = spec["lights"]
+    lights[0]["motion"] = {"type": "rotate", "axis": [0.0, 1.0, 0.0],
+                           "speed": float(rng.choice([-1, 1]) * rng.uniform(20, 90))}
+    for lt in lights[1:]:
+        lt["motion"] = {"type": "linear",
+                        "velocity": (rng.uniform(-1.5, 1.5, 3) * [1, 0, 1]).tolist()}
+    spec["name"] += "_light"
+    return spec
+
+
 def render_interp_sample(seed: int, size=(256, 144), taus=TAUS, spp: int = 2) -> dict:
-    """Render one training sample of random scene `seed` (deterministic in the seed)."""
+    """Render one training sample of random scene `seed` (deterministic in the seed);
+    seeds in LIGHT_SEEDS make shading-only scenes (see shading_only)."""
     import torch
 
     from fgcli.ops.mvinterp import guide_cues, guiding_flows
@@ -35,6 +72,8 @@ def render_interp_sample(seed: int, size=(256, 144), taus=TAUS, spp: int = 2) ->
     rng = np.random.default_rng([seed, 7])
     fps = float(rng.choice(FPS_CHOICES))
     spec = random_scene(seed, size=size, frames=9, fps=fps, spp=spp)
+    if LIGHT_SEEDS[0] <= seed < LIGHT_SEEDS[1]:
+        spec = shading_only(spec, rng)
     scene = load_scene(spec)
     i = float(rng.integers(0, 6))
     f0 = render(scene, i, i - 1.0, spp=spp)

@@ -40,7 +40,7 @@ class MVInterpTask:
 
     def __init__(self, train_dir: str, val_dir: str, widths=None, patch: int = 128,
                  batch: int = 8, limit: int | None = None, val_limit: int | None = None,
-                 seed: int = 0, guides: bool = True):
+                 seed: int = 0, guides: bool = True, extra_dirs=()):
         from fgcli.nets.mvinterp import DEFAULT_WIDTHS, MVInterpNet
 
         self.widths = tuple(widths or DEFAULT_WIDTHS)
@@ -52,13 +52,17 @@ class MVInterpTask:
             torch.manual_seed(seed)  # the initial weights depend on the seed only
             self.model = MVInterpNet(self.widths)
         self.train = load_samples(train_dir, limit)
+        self.extra = [os.path.basename(os.path.normpath(d)) for d in extra_dirs]
+        for d in extra_dirs:
+            self.train += load_samples(d)
         self.val = load_samples(val_dir, val_limit)
         self.n_train = len(self.train)
 
     def config(self) -> dict:
         return {"widths": list(self.widths), "patch": self.patch, "batch": self.batch_size,
                 "samples": self.n_train, "augment": "flip,reverse",
-                **({} if self.guides else {"guides": False})}
+                **({} if self.guides else {"guides": False}),
+                **({"extra": self.extra} if self.extra else {})}
 
     def batch(self, seed: int, step: int) -> dict:
         rng = np.random.default_rng([seed, step, 11])

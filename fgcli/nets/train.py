@@ -40,8 +40,9 @@ def lr_at(step: int, steps: int, lr: float, warmup: int = 200, floor: float = 0.
 
 def train(task, run_dir: str, steps: int, lr: float = 1e-3, seed: int = 0,
           ckpt_every: int = 200, val_every: int = 1000, device: str | None = None,
-          progress: bool = True, log=print) -> dict:
-    """Train task.model for `steps` steps into run_dir, continuing from run_dir/last.pt."""
+          progress: bool = True, log=print, init: str | None = None) -> dict:
+    """Train task.model for `steps` steps into run_dir, continuing from run_dir/last.pt;
+    a new run starts from the weights of checkpoint `init` when given (fine-tuning)."""
     os.makedirs(run_dir, exist_ok=True)
     dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(seed)
@@ -50,7 +51,7 @@ def train(task, run_dir: str, steps: int, lr: float = 1e-3, seed: int = 0,
     start, best = 0, None
     last = os.path.join(run_dir, "last.pt")
     meta = {"task": task.name, "seed": seed, "steps": steps, "lr": lr,
-            "config": task.config()}
+            "config": task.config(), "init": init}
     if os.path.exists(last):
         ck = torch.load(last, map_location=dev, weights_only=False)
         if ck["meta"]["task"] != task.name or ck["meta"]["config"] != meta["config"]:
@@ -60,6 +61,9 @@ def train(task, run_dir: str, steps: int, lr: float = 1e-3, seed: int = 0,
         opt.load_state_dict(ck["opt"])
         start, best = ck["step"], ck.get("best")
         log(f"resuming {task.name} at step {start} of {steps}")
+    elif init:
+        model.load_state_dict(torch.load(init, map_location=dev, weights_only=False)["model"])
+        log(f"starting from the weights of {init}")
     with open(os.path.join(run_dir, "run.json"), "w") as fh:
         json.dump(meta, fh, indent=1)
     lossf = open(os.path.join(run_dir, "loss.csv"), "a")
