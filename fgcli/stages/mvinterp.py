@@ -115,39 +115,39 @@ class MVInterpNet(Stage):
             return {"color": sanitize_values(ctx["color1"]), "depth": depth, "mv": mv}
         return self._warp_only(ctx)
 
-    def _warp_only(self, ctx):
+    @staticmethod
+    def _inputs(ctx):
+        """Sanitised colours, guiding flows and cue channels (zeros when the guide stage is
+        off: the plain IFRNet-style ablation)."""
         import torch
 
         from fgcli.ops import sanitize_mv, sanitize_values
-        from fgcli.ops.mvinterp import guide_warp
 
-        a = float(ctx["alpha"])
         c0, c1 = sanitize_values(ctx["color0"]), sanitize_values(ctx["color1"])
         if ctx.get("guide0") is None:
             g0 = g1 = torch.zeros(2, *c0.shape[-2:], dtype=torch.float32, device=c0.device)
-        else:
-            g0, g1 = sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"])
+            return c0, c1, g0, g1, torch.zeros_like(g0)
+        return c0, c1, sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"]), ctx["guide_cue"]
+
+    def _warp_only(self, ctx, inputs=None):
+        from fgcli.ops.mvinterp import guide_warp
+
+        a = float(ctx["alpha"])
+        c0, c1, g0, g1, _ = inputs or self._inputs(ctx)
         depth, mv = _depth_and_mv(ctx, g0, g1, a)
         return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
 
     def run(self, ctx):
-        import torch
         import torch.nn.functional as F
 
         from fgcli.nets.mvinterp import MULTIPLE
         from fgcli.nets.runtime import run_mvinterp
-        from fgcli.ops import sanitize_mv, sanitize_values
 
         a = float(ctx["alpha"])
-        c0, c1 = sanitize_values(ctx["color0"]), sanitize_values(ctx["color1"])
-        if ctx.get("guide0") is None:  # guide stage off: the plain IFRNet-style ablation
-            g0 = g1 = torch.zeros(2, *c0.shape[-2:], dtype=torch.float32, device=c0.device)
-            cue = torch.zeros_like(g0)
-        else:
-            g0, g1 = sanitize_mv(ctx["guide0"]), sanitize_mv(ctx["guide1"])
-            cue = ctx["guide_cue"]
+        inputs = self._inputs(ctx)
+        c0, c1, g0, g1, cue = inputs
         if not self.network:
-            return self._warp_only(ctx)
+            return self._warp_only(ctx, inputs)
         H, W = c0.shape[-2:]
         ph, pw = (-H) % MULTIPLE, (-W) % MULTIPLE
         x = [v[None] for v in (c0, c1, g0, g1, cue)]
