@@ -77,3 +77,38 @@ def clampf(v, lo, hi):
     if v > hi:
         return hi
     return v
+
+
+# Branch-free forms of the same rules (selects only): a branch in a kernel's per-pixel
+# body stops LLVM from vectorising the row loop, which costs 2x at 1080p.
+
+
+@njit(**INLINE)
+def sval_b(v):
+    """sanitize_values as selects."""
+    r = BIG if v == INF else v
+    r = -BIG if v == -INF else r
+    return F32(0.0) if v != v else r
+
+
+@njit(**INLINE)
+def sflow_b(v):
+    """sanitize_flow_positions as selects."""
+    r = FAR if v > FAR else v
+    r = -FAR if v < -FAR else r
+    return -FAR if v != v else r
+
+
+@njit(**INLINE)
+def smv_b(v):
+    """sanitize_mv as selects."""
+    r = MV_MAX if v > MV_MAX else v
+    r = -MV_MAX if v < -MV_MAX else r
+    return F32(0.0) if v != v else r
+
+
+@njit(**INLINE)
+def sdepth_b(v):
+    """sanitize_depth as selects."""
+    r = F32(0.0) if v <= F32(0.0) else v
+    return INF if v != v else r

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clampf, sdepth, smv
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clampf, sdepth, sdepth_b,
+                                   smv, smv_b)
 
 # 3x3 neighbours, row-major, centre excluded (fgcli.ops.fill._NEIGH)
 NDY = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
@@ -16,9 +17,26 @@ NDX = np.array([-1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
 @njit(**INLINE)
 def _d(depth, valid, y, x):
     """Gap-fill depth: sanitised, +inf at holes."""
-    if not valid[y, x]:
-        return INF
-    return sdepth(depth[y, x])
+    return sdepth_b(depth[y, x]) if valid[y, x] else INF
+
+
+@njit(**INLINE)
+def _load_row(depth, valid, r, h, w, D, V, slot):
+    """Row r of the gap-fill depth (+inf at holes) and of valid into buffer slot ``slot``,
+    with one +inf / False pad column each side (and all pads for rows outside)."""
+    D[slot, 0] = INF
+    V[slot, 0] = False
+    D[slot, w + 1] = INF
+    V[slot, w + 1] = False
+    if r < 0 or r >= h:
+        for x in range(w):
+            D[slot, x + 1] = INF
+            V[slot, x + 1] = False
+    else:
+        for x in range(w):
+            vv = valid[r, x]
+            D[slot, x + 1] = sdepth_b(depth[r, x]) if vv else INF
+            V[slot, x + 1] = vv
 
 
 @njit(**KERNEL)
@@ -26,69 +44,77 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                     o_to1, o_to0, o_depth, o_valid, o_source, o_filled, o_holes):
     """to1/to0 (2, H, W), depth (H, W), valid (H, W) bool, source (H, W) int32; f1 = the
     float32 factor (1 - threshold); fb (2, H, W) / fbd (H, W) fallback fields (used when
-    has_fb / has_fbd); c1, c0 the fallback coefficients. Writes the o_* arrays."""
+    has_fb / has_fbd); c1, c0 the fallback coefficients. Writes the o_* arrays.
+
+    Per row, three passes over x: the 3x3 minimum test (vectorised, from a rolling
+    3-row buffer of padded depths), the 2x2-block candidate rule for the few suspicious
+    pixels (scalar), and the outputs gathered at the chosen neighbour (vectorised)."""
     h, w = depth.shape
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
-        cand = np.zeros(8, dtype=np.bool_)
-        dn = np.empty(8, dtype=np.float32)
-        for x in range(w):
-            dc = _d(depth, valid, y, x)
-            hc = not valid[y, x]
-            limit = dc * f1
-            # 3x3 minimum (out-of-image ignored) below the margin, or a hole: suspicious
-            susp = hc
-            if not susp:
-                m = dc
-                for yy in range(max(0, y - 1), min(h, y + 2)):
-                    for xx in range(max(0, x - 1), min(w, x + 2)):
-                        v = _d(depth, valid, yy, xx)
-                        if v < m:
-                            m = v
-                susp = m < limit
-            sy, sx = y, x
-            fill = False
-            if susp:
-                for k in range(8):
-                    ny = y + NDY[k]
-                    nx = x + NDX[k]
-                    if 0 <= ny < h and 0 <= nx < w:
-                        dn[k] = _d(depth, valid, ny, nx)
-                        cand[k] = valid[ny, nx] and (dn[k] < limit or hc)
-                    else:
-                        dn[k] = INF
-                        cand[k] = False
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        D = np.empty((3, w + 2), dtype=np.float32)
+        V = np.empty((3, w + 2), dtype=np.bool_)
+        susp = np.empty(w, dtype=np.bool_)
+        off = np.empty(w, dtype=np.int64)  # chosen neighbour: 0..8 row-major, 4 = centre
+        cand = np.zeros(9, dtype=np.bool_)
+        dn = np.empty(9, dtype=np.float32)
+        _load_row(depth, valid, ya - 1, h, w, D, V, (ya + 2) % 3)
+        _load_row(depth, valid, ya, h, w, D, V, ya % 3)
+        for y in range(ya, yb):
+            _load_row(depth, valid, y + 1, h, w, D, V, (y + 1) % 3)
+            sa = (y + 2) % 3  # row y - 1
+            sb = y % 3
+            sc = (y + 1) % 3
+            for x in range(w):
+                dc = D[sb, x + 1]
+                m = min(min(min(D[sa, x], D[sa, x + 1]), min(D[sa, x + 2], D[sb, x])),
+                        min(min(D[sb, x + 2], D[sc, x]), min(D[sc, x + 1], D[sc, x + 2])))
+                m = min(m, dc)
+                susp[x] = (not V[sb, x + 1]) | (m < dc * f1)
+                off[x] = 4
+            for x in range(w):
+                if not susp[x]:
+                    continue
+                dc = D[sb, x + 1]
+                hc = not V[sb, x + 1]
+                limit = dc * f1
+                for k in range(9):
+                    s = sa if k < 3 else (sb if k < 6 else sc)
+                    j = x + k % 3
+                    dn[k] = D[s, j]
+                    cand[k] = V[s, j] and (D[s, j] < limit or hc)
+                cand[4] = False
                 keep = ((not cand[0]) and (not cand[1]) and (not cand[3])) or \
-                       ((not cand[1]) and (not cand[2]) and (not cand[4])) or \
-                       ((not cand[3]) and (not cand[5]) and (not cand[6])) or \
-                       ((not cand[4]) and (not cand[6]) and (not cand[7]))
+                       ((not cand[1]) and (not cand[2]) and (not cand[5])) or \
+                       ((not cand[3]) and (not cand[6]) and (not cand[7])) or \
+                       ((not cand[5]) and (not cand[7]) and (not cand[8]))
                 if not keep:
                     best = -1
-                    for k in range(8):
+                    for k in range(9):
                         if cand[k] and (best < 0 or dn[k] < dn[best]):
                             best = k
-                    sy = y + NDY[best]
-                    sx = x + NDX[best]
-                    fill = True
-            o_to1[0, y, x] = to1[0, sy, sx]
-            o_to1[1, y, x] = to1[1, sy, sx]
-            o_to0[0, y, x] = to0[0, sy, sx]
-            o_to0[1, y, x] = to0[1, sy, sx]
-            o_depth[y, x] = _d(depth, valid, sy, sx)
-            o_source[y, x] = source[sy, sx]
-            o_filled[y, x] = fill
-            v = valid[y, x] or fill
-            o_valid[y, x] = v
-            o_holes[y, x] = not v
-            if not v and has_fb:
-                mx = smv(fb[0, y, x])
-                my = smv(fb[1, y, x])
-                o_to1[0, y, x] = mx * c1
-                o_to1[1, y, x] = my * c1
-                o_to0[0, y, x] = mx * c0
-                o_to0[1, y, x] = my * c0
-                if has_fbd:
-                    o_depth[y, x] = sdepth(fbd[y, x])
+                    off[x] = best
+            for x in range(w):
+                o = off[x]
+                fill = o != 4
+                sy = y + o // 3 - 1
+                sx = x + o % 3 - 1
+                v = valid[y, x] | fill
+                hole_fb = (not v) & has_fb
+                mx = smv_b(fb[0, y, x]) if hole_fb else F32(0.0)
+                my = smv_b(fb[1, y, x]) if hole_fb else F32(0.0)
+                o_to1[0, y, x] = mx * c1 if hole_fb else to1[0, sy, sx]
+                o_to1[1, y, x] = my * c1 if hole_fb else to1[1, sy, sx]
+                o_to0[0, y, x] = mx * c0 if hole_fb else to0[0, sy, sx]
+                o_to0[1, y, x] = my * c0 if hole_fb else to0[1, sy, sx]
+                dd = _d(depth, valid, sy, sx)
+                o_depth[y, x] = sdepth_b(fbd[y, x]) if (hole_fb & has_fbd) else dd
+                o_source[y, x] = source[sy, sx]
+                o_filled[y, x] = fill
+                o_valid[y, x] = v
+                o_holes[y, x] = not v
 
 
 @njit(**KERNEL)

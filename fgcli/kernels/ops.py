@@ -74,6 +74,8 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     h, w = depth1.shape[-2:]
     if (h + 2) * (w + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
+    if h >= 65536 or w >= 65536:  # the kernel packs sources as y << 16 | x
+        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel)
     from fgcli.kernels.splat import splat_kernel
 
     ca, cb = R.motion_coefficients(a, model if mv0 is not None else "linear", mode)
@@ -84,7 +86,7 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     source = _empty(1, h, w, dtype=torch.int32)
     buf = np.empty((h + 2) * (w + 2), dtype=np.int64)
     splat_kernel(_a(depth1)[0], _a(mv1), _a(mv0) if quad else _DUMMY3,
-                 _a(depth0)[0] if use_d0 else _DUMMY2, F32(ca), F32(cb), quad, use_d0,
+                 _a(depth0)[0] if use_d0 else _a(depth1)[0], F32(ca), F32(cb), quad, use_d0,
                  F32(tol), buf, to1.numpy(), to0.numpy(), dt.numpy()[0], valid.numpy()[0],
                  source.numpy()[0])
     return R.SplatResult(to1=to1, to0=to0, depth=dt, valid=valid, source=source,
@@ -112,8 +114,9 @@ def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
     has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
     gap_fill_kernel(_a(result.to1), _a(result.to0), _a(result.depth)[0], _a(result.valid)[0],
                     _a(result.source)[0], F32(1.0 - thr),
-                    _a(fallback_mv) if has_fb else _DUMMY3,
-                    _a(fallback_depth)[0] if has_fbd else _DUMMY2, has_fb, has_fbd,
+                    # unused fields: same-shape stand-ins (the kernel may read them)
+                    _a(fallback_mv) if has_fb else _a(result.to1),
+                    _a(fallback_depth)[0] if has_fbd else _a(result.depth)[0], has_fb, has_fbd,
                     F32(c1), F32(c0), to1.numpy(), to0.numpy(), dep.numpy()[0],
                     valid.numpy()[0], source.numpy()[0], filled.numpy()[0], holes.numpy()[0])
     return result.replace(to1=to1, to0=to0, depth=dep, valid=valid, source=source,
@@ -156,7 +159,8 @@ def warp_frames(color1, depth1, to1, color0=None, depth0=None, to0=None, mode="b
         to0 = check_tensor(to0, "flow", 2)
         depth0 = check_tensor(depth0, "img")
         check_same(color0, "img", (to0, "flow"), (depth0, "depth"))
-    if depth1.shape[0] != 1 or (two and depth0.shape[0] != 1):
+    if depth1.shape[0] != 1 or (two and depth0.shape[0] != 1) or color1.shape[0] != 3 or \
+            (two and color0.shape[0] != 3):
         return RF.warp_frames(color1, depth1, to1, color0, depth0, to0, mode)
     from fgcli.kernels.warp import warp_kernel
 
@@ -177,7 +181,8 @@ def warp_frames(color1, depth1, to1, color0=None, depth0=None, to0=None, mode="b
 
 
 def mv_warp(color, depth, mv, scale, mode="bilinear", raw_depth_flow=True):
-    if mode != "bilinear" or not _cpu(color, depth, mv) or depth.shape[0] != 1:
+    if mode != "bilinear" or not _cpu(color, depth, mv) or depth.shape[0] != 1 or \
+            color.shape[-3] != 3:
         return RF.mv_warp(color, depth, mv, scale, mode, raw_depth_flow)
     color = check_tensor(color, "img")
     mv = check_tensor(mv, "mv", 2)

@@ -9,105 +9,184 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, I64_MAX, INF, INLINE, KERNEL, bits, clampf, sdepth, smv
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clampf, sdepth,
+                                   sdepth_b, smv, smv_b)
 from fgcli.kernels._intrin import atomic_min_i64, fma
 
 
 @njit(**KERNEL)
 def dilate_kernel(depth, mv, r, dout, mvout):
-    """depth (H, W), mv (2, H, W) -> dout (H, W), mvout (2, H, W)."""
+    """depth (H, W), mv (2, H, W) -> dout (H, W), mvout (2, H, W).
+
+    Separable form of the reference's lexicographic (depth, flat index) minimum over the
+    window: per row, a vertical minimum (depth, then the earlier row) of each column, then
+    a horizontal minimum of those (depth, row, column) over the padded row buffer, then the
+    centre keeps ties. Every inner loop runs over x with selects only (vectorised)."""
     h, w = depth.shape
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
-        for x in range(w):
-            dc = sdepth(depth[y, x])
-            best = dc
-            by, bx = y, x
-            found = False  # a strictly nearer pixel than the centre
-            for yy in range(max(0, y - r), min(h, y + r + 1)):
-                for xx in range(max(0, x - r), min(w, x + r + 1)):
-                    d = sdepth(depth[yy, xx])
-                    # lexicographic (depth, flat index) minimum: the first strictly nearer
-                    # in row-major order; the centre keeps ties
-                    if d < best:
-                        best = d
-                        by, bx = yy, xx
-                        found = True
-            if not found:
-                by, bx = y, x
-            dout[y, x] = best
-            mvout[0, y, x] = smv(mv[0, by, bx])
-            mvout[1, y, x] = smv(mv[1, by, bx])
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        vd = np.empty(w + 2 * r, dtype=np.float32)  # vertical minimum, +inf pads
+        vy = np.empty(w + 2 * r, dtype=np.int64)  # its row (pads: after every row)
+        bd = np.empty(w, dtype=np.float32)
+        by = np.empty(w, dtype=np.int64)
+        bx = np.empty(w, dtype=np.int64)
+        for j in range(r):
+            vd[j] = INF
+            vy[j] = h
+            vd[w + r + j] = INF
+            vy[w + r + j] = h
+        for y in range(ya, yb):
+            y0 = max(0, y - r)
+            y1 = min(h - 1, y + r)
+            for x in range(w):
+                vd[x + r] = sdepth_b(depth[y0, x])
+                vy[x + r] = y0
+            for yy in range(y0 + 1, y1 + 1):
+                for x in range(w):
+                    d = sdepth_b(depth[yy, x])
+                    t = d < vd[x + r]
+                    vd[x + r] = d if t else vd[x + r]
+                    vy[x + r] = yy if t else vy[x + r]
+            for x in range(w):
+                bd[x] = vd[x]
+                by[x] = vy[x]
+                bx[x] = x - r
+            for j in range(1, 2 * r + 1):
+                for x in range(w):
+                    d = vd[x + j]
+                    ry = vy[x + j]
+                    t = (d < bd[x]) | ((d == bd[x]) & (ry < by[x]))
+                    bd[x] = d if t else bd[x]
+                    by[x] = ry if t else by[x]
+                    bx[x] = x + j - r if t else bx[x]
+            for x in range(w):
+                dc = sdepth_b(depth[y, x])
+                t = bd[x] < dc
+                sy = by[x] if t else y
+                sx = bx[x] if t else x
+                dout[y, x] = bd[x] if t else dc
+                mvout[0, y, x] = smv_b(mv[0, sy, sx])
+                mvout[1, y, x] = smv_b(mv[1, sy, sx])
 
 
 @njit(**INLINE)
-def _disp(x, y, h, w, depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol):
-    """Displacement p_t - p1 of source pixel (x, y) and its sanitised vector a."""
-    ax = smv(mv1[0, y, x])
-    ay = smv(mv1[1, y, x])
+def _clamp_sel(v, lo, hi):
+    v = lo if v < lo else v
+    return hi if v > hi else v
+
+
+@njit(**INLINE)
+def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w, h):
+    """Quadratic displacement p_t - p1 of source (x, y) with sanitised vector a: frame 0's
+    vector b at the pixel nearest p1 + a (used only when p1 + a is inside, and with the
+    depth check, when frame 0's depth there agrees), else b = a. Selects only."""
+    use = (ax >= F32(-0.5) - xf) & (ax < F32(w - 0.5) - xf) & \
+          (ay >= F32(-0.5) - yf) & (ay < F32(h - 0.5) - yf)
+    ix = np.int64(_clamp_sel(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
+    iy = np.int64(_clamp_sel(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
+    bx = smv_b(mv0[0, iy, ix])
+    by = smv_b(mv0[1, iy, ix])
+    # depth0 is depth1 itself when the check is off (a safe read; the result is unused)
+    d0s = sdepth_b(depth0[iy, ix])
+    d1s = sdepth_b(depth1[y, x])
+    same = (d0s == d1s) | (abs(d0s - d1s) <= min(d0s, d1s) * tol)
+    use = use & (same | (not use_d0))
+    bx = bx if use else ax
+    by = by if use else ay
+    return fma(ax, ca, bx * cb), fma(ay, ca, by * cb)
+
+
+@njit(**INLINE)
+def _target(dx, dy, xf, yf, w, h):
+    """Index (into the (H+2) x (W+2) buffer with an off-screen ring) of the target pixel."""
+    qx = _clamp_sel(np.floor(dx + (xf + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
+    qy = _clamp_sel(np.floor(dy + (yf + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
+    return np.int64(qy) * (w + 2) + np.int64(qx)
+
+
+@njit(**INLINE)
+def _resolve_px(k, x, y, quad, depth1, mv1, mv0, depth0, ca, cb, use_d0, tol, w, h,
+                to1, to0, dout, valid, source):
+    """Target pixel (x, y) from its winning key k (I64_MAX: a hole)."""
+    ok = k != I64_MAX
+    lo = k & 0xFFFFFFFF
+    sy = (lo >> 16) if ok else y
+    sx = (lo & 0xFFFF) if ok else np.int64(x)
+    ax = smv_b(mv1[0, sy, sx])
+    ay = smv_b(mv1[1, sy, sx])
     if quad:
-        fx = F32(x)
-        fy = F32(y)
-        # inside_mask(a) and nearest_index(a)
-        use = (ax >= F32(-0.5) - fx) and (ax < F32(w - 0.5) - fx) and \
-              (ay >= F32(-0.5) - fy) and (ay < F32(h - 0.5) - fy)
-        ix = int(clampf(np.floor(ax + (fx + F32(0.5))), F32(0.0), F32(w - 1)))
-        iy = int(clampf(np.floor(ay + (fy + F32(0.5))), F32(0.0), F32(h - 1)))
-        bx = smv(mv0[0, iy, ix])
-        by = smv(mv0[1, iy, ix])
-        if use_d0:
-            d0s = sdepth(depth0[iy, ix])
-            d1s = sdepth(depth1[y, x])
-            same = d0s == d1s or abs(d0s - d1s) <= min(d0s, d1s) * tol
-            use = use and same
-        if not use:
-            bx = ax
-            by = ay
-        return fma(ax, ca, bx * cb), fma(ay, ca, by * cb), ax, ay
-    return ax * ca, ay * ca, ax, ay
+        dx, dy = _disp_quad(sx, sy, F32(sx), F32(sy), ax, ay, mv0, depth0, depth1, ca, cb,
+                            use_d0, tol, w, h)
+    else:
+        dx = ax * ca
+        dy = ay * ca
+    source[y, x] = np.int32(sy * w + sx) if ok else np.int32(-1)
+    valid[y, x] = ok
+    dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
+    to1[0, y, x] = -dx if ok else F32(0.0)
+    to1[1, y, x] = -dy if ok else F32(0.0)
+    to0[0, y, x] = ax - dx if ok else F32(0.0)
+    to0[1, y, x] = ay - dy if ok else F32(0.0)
 
 
 @njit(**KERNEL)
 def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf,
                  to1, to0, dout, valid, source):
-    """Scatter (atomic min of packed keys into buf, (H+2)*(W+2) with an off-screen ring),
-    then resolve every target pixel."""
+    """Scatter (minimum of packed keys ``depth bits << 32 | y << 16 | x`` into buf,
+    (H+2)*(W+2) with an off-screen ring; the (y, x) packing orders like the flat index),
+    then resolve every target pixel. Widths and heights are below 65536 (the wrapper
+    checks).
+
+    The scatter is a plain read-compare-write per source (an atomic per source serialises
+    the cache misses: several times slower), then a check pass redoes, with an atomic
+    minimum, the few sources whose key lost a race between threads; the minimum is unique,
+    so the result does not depend on thread timing."""
     h, w = depth1.shape
-    w2 = w + 2
     nb = buf.shape[0]
     for i in prange(nb):
         buf[i] = I64_MAX
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
-        for x in range(w):
-            dx, dy, _, _ = _disp(x, y, h, w, depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol)
-            qx = clampf(np.floor(dx + (F32(x) + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
-            qy = clampf(np.floor(dy + (F32(y) + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
-            q = int(qy) * w2 + int(qx)
-            key = (np.int64(bits(sdepth(depth1[y, x]))) << 32) | np.int64(y * w + x)
-            atomic_min_i64(buf, q, key)
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
-        for x in range(w):
-            k = buf[(y + 1) * w2 + x + 1]
-            if k == I64_MAX:
-                source[y, x] = -1
-                valid[y, x] = False
-                dout[y, x] = INF
-                to1[0, y, x] = F32(0.0)
-                to1[1, y, x] = F32(0.0)
-                to0[0, y, x] = F32(0.0)
-                to0[1, y, x] = F32(0.0)
+    for rep in range(2):
+        for py in prange(h):
+            y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
+            yf = F32(y)
+            qs = np.empty(w, dtype=np.int64)
+            ks = np.empty(w, dtype=np.int64)
+            if quad:
+                for x in range(w):
+                    xf = F32(x)
+                    ax = smv_b(mv1[0, y, x])
+                    ay = smv_b(mv1[1, y, x])
+                    dx, dy = _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb,
+                                        use_d0, tol, w, h)
+                    qs[x] = _target(dx, dy, xf, yf, w, h)
+                    ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
             else:
-                s = np.int32(k & 0xFFFFFFFF)
-                sy = s // w
-                sx = s - sy * w
-                dx, dy, ax, ay = _disp(sx, sy, h, w, depth1, mv1, mv0, depth0, ca, cb, quad,
-                                       use_d0, tol)
-                source[y, x] = s
-                valid[y, x] = True
-                dout[y, x] = sdepth(depth1[sy, sx])
-                to1[0, y, x] = -dx
-                to1[1, y, x] = -dy
-                to0[0, y, x] = ax - dx
-                to0[1, y, x] = ay - dy
+                for x in range(w):
+                    xf = F32(x)
+                    dx = smv_b(mv1[0, y, x]) * ca
+                    dy = smv_b(mv1[1, y, x]) * ca
+                    qs[x] = _target(dx, dy, xf, yf, w, h)
+                    ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
+            if rep == 0:
+                for x in range(w):
+                    q = qs[x]
+                    if ks[x] < buf[q]:
+                        buf[q] = ks[x]
+            else:
+                for x in range(w):
+                    q = qs[x]
+                    if ks[x] < buf[q]:
+                        atomic_min_i64(buf, q, ks[x])
+    w2 = w + 2
+    for py in prange(h):
+        y = np.int64(py)
+        if quad:
+            for x in range(w):
+                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, True, depth1, mv1, mv0, depth0,
+                            ca, cb, use_d0, tol, w, h, to1, to0, dout, valid, source)
+        else:
+            for x in range(w):
+                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, False, depth1, mv1, mv0, depth0,
+                            ca, cb, use_d0, tol, w, h, to1, to0, dout, valid, source)
