@@ -34,11 +34,10 @@ def numba_available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
-# What `auto` picks on the CPU. The kernels are bit-identical to the torch ops but not yet
-# faster end to end (benchmarks/stages.py at 1080p: mob-fgsr interp 675 ms numba vs 726 ms
-# torch, 1.1x; blend and mv-warp slower), and a fresh install pays ~30-70 s of one-time
-# compilation: auto stays torch until the kernels earn it; --backend numba opts in.
-AUTO_CPU = "torch"
+# What `auto` picks on the CPU: the kernels (bit-identical to the torch ops on FMA builds,
+# 3-4x faster per 1080p frame; docs/performance.md). A fresh install compiles them once
+# into numba's on-disk cache (tens of seconds); later processes load them in < 1 s.
+AUTO_CPU = "numba"
 
 
 def resolve(backend: str | None, device: str = "cpu") -> str:

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, bits, sdepth, sval
+from fgcli.kernels._common import (F32, INLINE, KERNEL, bits, sdepth, sdepth_b, smv_b, sval,
+                                   sval_b)
 from fgcli.kernels._intrin import fma
 
 _LO = np.float32(0.0031308)  # the clamp of fgcli.ops.blend._encode_fast
@@ -57,95 +58,102 @@ def lerp(a, b, w):
     return fma(w - F32(1.0), b - a, b)
 
 
+@njit(**INLINE)
+def _agree_b(x, y, t):
+    return (x == y) | (abs(x - y) <= min(x, y) * t)
+
+
+@njit(**INLINE)
+def _lerp_b(a, b, w):
+    """torch.lerp's float32 formula (vectorised CPU kernel: one FMA), as a select."""
+    return fma(w, b - a, a) if abs(w) < F32(0.5) else fma(w - F32(1.0), b - a, b)
+
+
 @njit(**KERNEL)
 def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_static,
                  a, near_w, td, tb, endpoint, table, base, out_c, out_d):
     """Eq. 1 per pixel (see fgcli.ops.blend.blend_interp): colour (3, H, W) and depth.
-    a: float32 alpha; near_w 0 or 1; endpoint 0 (none), 1 (alpha 0: c0), 2 (alpha 1: c1)."""
+    a: float32 alpha; near_w 0 or 1; endpoint 0 (none), 1 (alpha 0: c0), 2 (alpha 1: c1).
+
+    Per row, three passes over x: every case but the brightness test (vectorised), the
+    brightness test for the pixels that need it (scalar: six table lookups each), the
+    lerp and the outputs (vectorised)."""
     h, w = d0.shape
     thr_static = F32(1e-3)
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
-        for x in range(w):
-            a0 = sval(c0[0, y, x])
-            a1 = sval(c0[1, y, x])
-            a2 = sval(c0[2, y, x])
-            b0 = sval(c1[0, y, x])
-            b1 = sval(c1[1, y, x])
-            b2 = sval(c1[2, y, x])
-            e0 = sdepth(d0[y, x])
-            e1 = sdepth(d1[y, x])
-            p0 = v0[y, x]
-            p1 = v1[y, x]
-            agree = _agree(e0, e1, td)
-            take0 = e0 > e1
-            if has_dt:
-                t = sdepth(dt[y, x])
-                m0 = _agree(e0, t, td)
-                m1 = _agree(e1, t, td)
-                if m0 != m1:
-                    take0 = m0
-            both = p0 and p1
-            dis = both and not agree
-            pick0 = (dis and take0) or (p0 and not p1)
-            pick1 = (dis and not take0) or (p1 and not p0)
-            none = not (p0 or p1)
-            if pick1:
-                wt = F32(1.0)
-            elif pick0:
-                wt = F32(0.0)
-            elif none:
-                wt = near_w
-            else:
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        wts = np.empty(w, dtype=np.float32)
+        need = np.empty(w, dtype=np.bool_)
+        for y in range(ya, yb):
+            for x in range(w):
+                e0 = sdepth_b(d0[y, x])
+                e1 = sdepth_b(d1[y, x])
+                p0 = v0[y, x]
+                p1 = v1[y, x]
+                agree = _agree_b(e0, e1, td)
+                take0 = e0 > e1
+                if has_dt:
+                    t = sdepth_b(dt[y, x])
+                    m0 = _agree_b(e0, t, td)
+                    m1 = _agree_b(e1, t, td)
+                    take0 = m0 if m0 != m1 else take0
+                dis = p0 & p1 & (not agree)
+                pick0 = (dis & take0) | (p0 & (not p1))
+                pick1 = (dis & (not take0)) | (p1 & (not p0))
+                none = not (p0 | p1)
+                static = False
+                if has_static:
+                    static = mvalid[y, x] & \
+                        (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) & \
+                        (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static)
+                mid = (not (pick0 | pick1 | none)) & agree & (endpoint == 0) & (not static)
+                eqc = (sval_b(c0[0, y, x]) == sval_b(c1[0, y, x])) & \
+                    (sval_b(c0[1, y, x]) == sval_b(c1[1, y, x])) & \
+                    (sval_b(c0[2, y, x]) == sval_b(c1[2, y, x]))
                 wt = a
-                if agree and endpoint == 0:
-                    static = False
-                    if has_static and mvalid[y, x]:
-                        static = max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static and \
-                            max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static
-                    if not static:
-                        if a0 == b0 and a1 == b1 and a2 == b2:
-                            similar = True
-                        else:
-                            q0 = abs(_enc(a0, table, base) - _enc(b0, table, base))
-                            q1 = abs(_enc(a1, table, base) - _enc(b1, table, base))
-                            q2 = abs(_enc(a2, table, base) - _enc(b2, table, base))
-                            bd = fma(q1, F32(1.055), (q0 + q2) * F32(0.5 * 1.055))
-                            similar = bd <= tb
-                        if similar:
-                            wt = near_w
-            if endpoint == 1:
-                out_c[0, y, x] = a0
-                out_c[1, y, x] = a1
-                out_c[2, y, x] = a2
-            elif endpoint == 2:
-                out_c[0, y, x] = b0
-                out_c[1, y, x] = b1
-                out_c[2, y, x] = b2
+                wt = near_w if (mid & eqc) | none else wt
+                wt = F32(0.0) if pick0 else wt
+                wt = F32(1.0) if pick1 else wt
+                wts[x] = wt
+                need[x] = mid & (not eqc)
+                take_d0 = pick0 | ((agree | none) & (not pick1) & (near_w == F32(0.0)))
+                out_d[y, x] = e0 if take_d0 else e1
+            for x in range(w):
+                if need[x]:
+                    q0 = abs(_enc(sval(c0[0, y, x]), table, base) -
+                             _enc(sval(c1[0, y, x]), table, base))
+                    q1 = abs(_enc(sval(c0[1, y, x]), table, base) -
+                             _enc(sval(c1[1, y, x]), table, base))
+                    q2 = abs(_enc(sval(c0[2, y, x]), table, base) -
+                             _enc(sval(c1[2, y, x]), table, base))
+                    bd = fma(q1, F32(1.055), (q0 + q2) * F32(0.5 * 1.055))
+                    if bd <= tb:
+                        wts[x] = near_w
+            if endpoint == 0:
+                for x in range(w):
+                    wt = wts[x]
+                    for k in range(3):
+                        out_c[k, y, x] = _lerp_b(sval_b(c0[k, y, x]), sval_b(c1[k, y, x]), wt)
             else:
-                out_c[0, y, x] = lerp(a0, b0, wt)
-                out_c[1, y, x] = lerp(a1, b1, wt)
-                out_c[2, y, x] = lerp(a2, b2, wt)
-            take_d0 = pick0 or ((agree or none) and not pick1 and near_w == F32(0.0))
-            out_d[y, x] = e0 if take_d0 else e1
+                src = c0 if endpoint == 1 else c1
+                for x in range(w):
+                    for k in range(3):
+                        out_c[k, y, x] = sval_b(src[k, y, x])
 
 
 @njit(**KERNEL)
 def crossfade_kernel(c0, c1, d0, d1, mv1, a, ms, out_c, out_d, out_mv):
-    """blend baseline: lerp(c0, c1, a), min depth, mv = sanitize_mv(mv1) * ms."""
+    """blend baseline: lerp(c0, c1, a), min depth, mv = sanitize_mv(mv1) * ms. Channel
+    loop outside the row loop (a runtime count inside it keeps the row loop scalar)."""
     ch, h, w = c0.shape
     for py in prange(h):
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
+        for k in range(ch):
+            for x in range(w):
+                out_c[k, y, x] = _lerp_b(sval_b(c0[k, y, x]), sval_b(c1[k, y, x]), a)
         for x in range(w):
-            for k in range(ch):
-                out_c[k, y, x] = lerp(sval(c0[k, y, x]), sval(c1[k, y, x]), a)
-            out_d[y, x] = min(sdepth(d0[y, x]), sdepth(d1[y, x]))
-            for k in range(2):
-                m = mv1[k, y, x]
-                if m != m:
-                    m = F32(0.0)
-                elif m > F32(1e6):
-                    m = F32(1e6)
-                elif m < F32(-1e6):
-                    m = F32(-1e6)
-                out_mv[k, y, x] = m * ms
+            out_d[y, x] = min(sdepth_b(d0[y, x]), sdepth_b(d1[y, x]))
+            out_mv[0, y, x] = smv_b(mv1[0, y, x]) * ms
+            out_mv[1, y, x] = smv_b(mv1[1, y, x]) * ms

@@ -12,6 +12,9 @@ from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clampf, sdepth, sde
 # 3x3 neighbours, row-major, centre excluded (fgcli.ops.fill._NEIGH)
 NDY = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
 NDX = np.array([-1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
+# the same with the centre (index 4)
+DY9 = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1], dtype=np.int64)
+DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
 
 
 @njit(**INLINE)
@@ -21,22 +24,10 @@ def _d(depth, valid, y, x):
 
 
 @njit(**INLINE)
-def _load_row(depth, valid, r, h, w, D, V, slot):
-    """Row r of the gap-fill depth (+inf at holes) and of valid into buffer slot ``slot``,
-    with one +inf / False pad column each side (and all pads for rows outside)."""
-    D[slot, 0] = INF
-    V[slot, 0] = False
-    D[slot, w + 1] = INF
-    V[slot, w + 1] = False
-    if r < 0 or r >= h:
-        for x in range(w):
-            D[slot, x + 1] = INF
-            V[slot, x + 1] = False
-    else:
-        for x in range(w):
-            vv = valid[r, x]
-            D[slot, x + 1] = sdepth_b(depth[r, x]) if vv else INF
-            V[slot, x + 1] = vv
+def _clamp01(v, hi):
+    """clamp to [0, hi] (finite v), as selects."""
+    v = F32(0.0) if v < F32(0.0) else v
+    return hi if v > hi else v
 
 
 @njit(**KERNEL)
@@ -60,10 +51,23 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
         off = np.empty(w, dtype=np.int64)  # chosen neighbour: 0..8 row-major, 4 = centre
         cand = np.zeros(9, dtype=np.bool_)
         dn = np.empty(9, dtype=np.float32)
-        _load_row(depth, valid, ya - 1, h, w, D, V, (ya + 2) % 3)
-        _load_row(depth, valid, ya, h, w, D, V, ya % 3)
-        for y in range(ya, yb):
-            _load_row(depth, valid, y + 1, h, w, D, V, (y + 1) % 3)
+        for r in range(ya - 1, yb + 1):
+            # row r of the gap-fill depth (+inf at holes) and of valid into slot r % 3,
+            # padded with +inf / False (rows outside the image: all pads)
+            sl = (r + 3) % 3
+            D[sl, 0] = INF
+            V[sl, 0] = False
+            D[sl, w + 1] = INF
+            V[sl, w + 1] = False
+            rin = (r >= 0) & (r < h)
+            rr = min(max(r, 0), h - 1)
+            for x in range(w):
+                vv = valid[rr, x] & rin
+                D[sl, x + 1] = sdepth_b(depth[rr, x]) if vv else INF
+                V[sl, x + 1] = vv
+            if r < ya + 1:
+                continue
+            y = r - 1
             sa = (y + 2) % 3  # row y - 1
             sb = y % 3
             sc = (y + 1) % 3
@@ -82,7 +86,7 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                 limit = dc * f1
                 for k in range(9):
                     s = sa if k < 3 else (sb if k < 6 else sc)
-                    j = x + k % 3
+                    j = x + 1 + DX9[k]
                     dn[k] = D[s, j]
                     cand[k] = V[s, j] and (D[s, j] < limit or hc)
                 cand[4] = False
@@ -99,8 +103,10 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
             for x in range(w):
                 o = off[x]
                 fill = o != 4
-                sy = y + o // 3 - 1
-                sx = x + o % 3 - 1
+                # table lookups, not // and %: numba's Python-semantics integer division
+                # (sign fix-ups, a zero check) keeps the loop scalar
+                sy = y + DY9[o]
+                sx = x + DX9[o]
                 v = valid[y, x] | fill
                 hole_fb = (not v) & has_fb
                 mx = smv_b(fb[0, y, x]) if hole_fb else F32(0.0)
@@ -122,39 +128,35 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
                        o_to1, o_to0, o_depth, o_holes):
     """fill_extrap_holes: holes (valid False) take alpha * mv1(q) when frame 1's depth at
     the pixel nearest q + alpha * mv1(q) is background (else zero motion), and
-    to0 = to1 + mv1(nearest q + to1)."""
+    to0 = to1 + mv1(nearest q + to1). Selects only (the row loop vectorises)."""
     h, w = depth1.shape
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
     for py in prange(h):
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
+        yf = F32(y)
         for x in range(w):
-            if valid[y, x]:
-                o_to1[0, y, x] = to1[0, y, x]
-                o_to1[1, y, x] = to1[1, y, x]
-                o_to0[0, y, x] = to0[0, y, x]
-                o_to0[1, y, x] = to0[1, y, x]
-                o_depth[y, x] = sdepth(depth_t[y, x])
-                o_holes[y, x] = False
-                continue
-            mx = smv(mv1[0, y, x]) * alpha
-            my = smv(mv1[1, y, x]) * alpha
-            sx = F32(x) + mx
-            sy = F32(y) + my
-            inside = (sx >= F32(-0.5)) and (sx < F32(w - 0.5)) and (sy >= F32(-0.5)) and \
-                     (sy < F32(h - 0.5))
-            ix = int(clampf(np.floor(sx + F32(0.5)), F32(0.0), F32(w - 1)))
-            iy = int(clampf(np.floor(sy + F32(0.5)), F32(0.0), F32(h - 1)))
-            ds = sdepth(depth1[iy, ix])
-            do = sdepth(depth1[y, x])
-            bg = inside and not (ds < do * f1)
-            if bg:
-                vx, vy, dd = mx, my, ds
-            else:
-                vx, vy, dd = F32(0.0), F32(0.0), do
-            o_to1[0, y, x] = vx
-            o_to1[1, y, x] = vy
-            o_depth[y, x] = dd
-            o_holes[y, x] = True
-            jx = int(clampf(np.floor((F32(x) + vx) + F32(0.5)), F32(0.0), F32(w - 1)))
-            jy = int(clampf(np.floor((F32(y) + vy) + F32(0.5)), F32(0.0), F32(h - 1)))
-            o_to0[0, y, x] = vx + smv(mv1[0, jy, jx])
-            o_to0[1, y, x] = vy + smv(mv1[1, jy, jx])
+            xf = F32(x)
+            ok = valid[y, x]
+            mx = smv_b(mv1[0, y, x]) * alpha
+            my = smv_b(mv1[1, y, x]) * alpha
+            sx = xf + mx
+            sy = yf + my
+            inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
+                (sy < F32(h - 0.5))
+            ix = np.int64(_clamp01(np.floor(sx + F32(0.5)), wm1))
+            iy = np.int64(_clamp01(np.floor(sy + F32(0.5)), hm1))
+            ds = sdepth_b(depth1[iy, ix])
+            do = sdepth_b(depth1[y, x])
+            bg = inside & (not (ds < do * f1))
+            vx = mx if bg else F32(0.0)
+            vy = my if bg else F32(0.0)
+            dd = ds if bg else do
+            jx = np.int64(_clamp01(np.floor((xf + vx) + F32(0.5)), wm1))
+            jy = np.int64(_clamp01(np.floor((yf + vy) + F32(0.5)), hm1))
+            o_to1[0, y, x] = to1[0, y, x] if ok else vx
+            o_to1[1, y, x] = to1[1, y, x] if ok else vy
+            o_to0[0, y, x] = to0[0, y, x] if ok else vx + smv_b(mv1[0, jy, jx])
+            o_to0[1, y, x] = to0[1, y, x] if ok else vy + smv_b(mv1[1, jy, jx])
+            o_depth[y, x] = sdepth_b(depth_t[y, x]) if ok else dd
+            o_holes[y, x] = not ok
