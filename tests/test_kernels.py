@@ -267,7 +267,8 @@ def _pipeline_outputs(name, mode, backend, f, alpha):
 
 @pytest.mark.parametrize("name,mode", [("mob-fgsr", "interp"), ("mob-fgsr", "extrap"),
                                        ("mv-warp", "interp"), ("mv-warp", "extrap"),
-                                       ("blend", "interp"), ("repeat", "interp")])
+                                       ("blend", "interp"), ("repeat", "interp"),
+                                       ("mv-interp", "interp")])
 def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
     s0, s1 = tiny_scene(0), tiny_scene(1)
     f = {f"{k}{i}": torch.from_numpy(s[key]) for i, s in ((0, s0), (1, s1))

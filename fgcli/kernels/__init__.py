@@ -27,6 +27,7 @@ KERNEL_OPS = {
     "warp_frames": "fgcli.kernels.reference",
     "mv_warp": "fgcli.kernels.reference",
     "crossfade": "fgcli.kernels.reference",
+    "guiding_flows": "fgcli.ops.mvinterp",
 }
 
 

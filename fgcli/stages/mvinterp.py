@@ -41,10 +41,10 @@ class Guide(Stage):
         return guide_cues(d0, d1, g0, g1, holes)
 
     def run(self, ctx):
-        from fgcli.ops.mvinterp import guiding_flows
+        from fgcli.kernels import op
 
         mv0 = ctx.get("mv0")
-        g0, g1, holes = guiding_flows(ctx["depth1"], ctx["mv1"], ctx["alpha"], mv0,
+        g0, g1, holes = op("guiding_flows", ctx)(ctx["depth1"], ctx["mv1"], ctx["alpha"], mv0,
                                       ctx.get("depth0") if mv0 is not None else None)
         return {"guide0": g0, "guide1": g1, "guide_cue": self._cue(ctx, g0, g1, holes)}
 
