@@ -37,9 +37,10 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
     float32 factor (1 - threshold); fb (2, H, W) / fbd (H, W) fallback fields (used when
     has_fb / has_fbd); c1, c0 the fallback coefficients. Writes the o_* arrays.
 
-    Per row, three passes over x: the 3x3 minimum test (vectorised, from a rolling
-    3-row buffer of padded depths), the 2x2-block candidate rule for the few suspicious
-    pixels (scalar), and the outputs gathered at the chosen neighbour (vectorised)."""
+    Per row: the 3x3 minimum test (vectorised, from a rolling 3-row buffer of padded
+    depths), the 2x2-block candidate rule for the few suspicious pixels (scalar), the
+    outputs as if no pixel were filled (contiguous, vectorised), then the filled pixels'
+    neighbour values (scalar, few)."""
     h, w = depth.shape
     nch = min(h, 64)
     for ch in prange(nch):
@@ -48,7 +49,8 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
         D = np.empty((3, w + 2), dtype=np.float32)
         V = np.empty((3, w + 2), dtype=np.bool_)
         susp = np.empty(w, dtype=np.bool_)
-        off = np.empty(w, dtype=np.int64)  # chosen neighbour: 0..8 row-major, 4 = centre
+        off = np.empty(w, dtype=np.int64)  # chosen neighbour (0..8 row-major) of fxs[i]
+        fxs = np.empty(w, dtype=np.int64)
         cand = np.zeros(9, dtype=np.bool_)
         dn = np.empty(9, dtype=np.float32)
         for r in range(ya - 1, yb + 1):
@@ -77,7 +79,7 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                         min(min(D[sb, x + 2], D[sc, x]), min(D[sc, x + 1], D[sc, x + 2])))
                 m = min(m, dc)
                 susp[x] = (not V[sb, x + 1]) | (m < dc * f1)
-                off[x] = 4
+            nf = 0  # filled pixels of this row (their x in fx[:nf])
             for x in range(w):
                 if not susp[x]:
                     continue
@@ -99,28 +101,39 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                     for k in range(9):
                         if cand[k] and (best < 0 or dn[k] < dn[best]):
                             best = k
-                    off[x] = best
+                    off[nf] = best
+                    fxs[nf] = x
+                    nf += 1
+            # every pixel as if it kept its own values (contiguous loads, vectorised) ...
             for x in range(w):
-                o = off[x]
-                fill = o != 4
-                # table lookups, not // and %: numba's Python-semantics integer division
-                # (sign fix-ups, a zero check) keeps the loop scalar
-                sy = y + DY9[o]
-                sx = x + DX9[o]
-                v = valid[y, x] | fill
+                v = valid[y, x]
                 hole_fb = (not v) & has_fb
-                mx = smv_b(fb[0, y, x]) if hole_fb else F32(0.0)
-                my = smv_b(fb[1, y, x]) if hole_fb else F32(0.0)
-                o_to1[0, y, x] = mx * c1 if hole_fb else to1[0, sy, sx]
-                o_to1[1, y, x] = my * c1 if hole_fb else to1[1, sy, sx]
-                o_to0[0, y, x] = mx * c0 if hole_fb else to0[0, sy, sx]
-                o_to0[1, y, x] = my * c0 if hole_fb else to0[1, sy, sx]
-                dd = _d(depth, valid, sy, sx)
+                mx = smv_b(fb[0, y, x])
+                my = smv_b(fb[1, y, x])
+                o_to1[0, y, x] = mx * c1 if hole_fb else to1[0, y, x]
+                o_to1[1, y, x] = my * c1 if hole_fb else to1[1, y, x]
+                o_to0[0, y, x] = mx * c0 if hole_fb else to0[0, y, x]
+                o_to0[1, y, x] = my * c0 if hole_fb else to0[1, y, x]
+                dd = sdepth_b(depth[y, x]) if v else INF
                 o_depth[y, x] = sdepth_b(fbd[y, x]) if (hole_fb & has_fbd) else dd
-                o_source[y, x] = source[sy, sx]
-                o_filled[y, x] = fill
+                o_source[y, x] = source[y, x]
+                o_filled[y, x] = False
                 o_valid[y, x] = v
                 o_holes[y, x] = not v
+            # ... then the few filled ones take their neighbour's
+            for i in range(nf):
+                x = fxs[i]
+                sy = y + DY9[off[i]]
+                sx = x + DX9[off[i]]
+                o_to1[0, y, x] = to1[0, sy, sx]
+                o_to1[1, y, x] = to1[1, sy, sx]
+                o_to0[0, y, x] = to0[0, sy, sx]
+                o_to0[1, y, x] = to0[1, sy, sx]
+                o_depth[y, x] = _d(depth, valid, sy, sx)
+                o_source[y, x] = source[sy, sx]
+                o_filled[y, x] = True
+                o_valid[y, x] = True
+                o_holes[y, x] = False
 
 
 @njit(**KERNEL)

@@ -21,7 +21,9 @@ def dilate_kernel(depth, mv, r, dout, mvout):
     Separable form of the reference's lexicographic (depth, flat index) minimum over the
     window: per row, a vertical minimum (depth, then the earlier row) of each column, then
     a horizontal minimum of those (depth, row, column) over the padded row buffer, then the
-    centre keeps ties. Every inner loop runs over x with selects only (vectorised)."""
+    centre keeps ties. Every inner loop runs over x with selects only (vectorised). On
+    slopes a neighbour is nearer than the centre almost everywhere, so the vector is
+    gathered at the winner for every pixel (no sparse patch pass)."""
     h, w = depth.shape
     nch = min(h, 64)
     for ch in prange(nch):
@@ -69,6 +71,12 @@ def dilate_kernel(depth, mv, r, dout, mvout):
                 dout[y, x] = bd[x] if t else dc
                 mvout[0, y, x] = smv_b(mv[0, sy, sx])
                 mvout[1, y, x] = smv_b(mv[1, sy, sx])
+
+
+@njit(**INLINE)
+def _clamp_sel(v, lo, hi):
+    v = lo if v < lo else v
+    return hi if v > hi else v
 
 
 @njit(**INLINE)
