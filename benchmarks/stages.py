@@ -96,6 +96,19 @@ def main():
     print(f"EXR read  (color+depth+mv):                               {r_ms:.1f} ms "
           f"({r_ms / ref:.0f}x ref)\n")
 
+    # start-up: a fresh process loading every numba kernel from the on-disk cache (the
+    # first call may compile them; the second is what every later fgen run pays)
+    import subprocess
+
+    code = "from fgcli.kernels.ops import warm; print(warm())"
+    loads = []
+    for _ in range(2):
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           cwd=ROOT)
+        loads.append(float(r.stdout.strip().splitlines()[-1]) * 1000 if r.returncode == 0
+                     else float("nan"))
+    print(f"numba kernels, fresh process: first {loads[0]:.0f} ms (compiles when the cache is "
+          f"cold), then {loads[1]:.0f} ms (cached)\n")
     names = list(pl.available()) if args.pipelines == "all" else args.pipelines.split(",")
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     from fgcli.kernels import resolve
@@ -103,6 +116,7 @@ def main():
     backends = [resolve(b, "cpu") for b in backends]
     result = {"size": [W, H], "threads": torch.get_num_threads(), "torch": torch.__version__,
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
+              "kernel_load_ms": {"first_process": loads[0], "cached": loads[1]},
               "pipelines": {}}
     cols = " | ".join(f"{b} ms/frame | {b} x copy" for b in backends)
     print(f"| pipeline | mode | {cols} | speed-up | stages (median ms, "

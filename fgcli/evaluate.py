@@ -291,7 +291,8 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     from fgcli.kernels import resolve
 
     check_device(device)
-    backend = resolve(backend, device)
+    rd = getattr(src, "rin", None) or getattr(src, "r", None)
+    backend = resolve(backend, device, rd.width * rd.height if rd is not None else None)
     sync = device_sync(device)
     tasks = make_tasks(src, mode)
     if not tasks:

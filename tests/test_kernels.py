@@ -287,9 +287,13 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
 def test_dispatch_and_resolve():
     from fgcli.errors import UsageError
 
-    from fgcli.kernels import AUTO_CPU
+    from fgcli.kernels import AUTO_CPU, AUTO_MIN_PIXELS
 
     assert resolve("auto", "cpu") == AUTO_CPU and resolve("auto", "cuda") == "torch"
+    # auto: kernels for production-size frames only (compilation would not pay below)
+    assert resolve("auto", "cpu", 1920 * 1080) == AUTO_CPU
+    assert resolve("auto", "cpu", AUTO_MIN_PIXELS - 1) == "torch"
+    assert resolve("numba", "cpu", 4) == "numba"
     assert resolve("numba", "cpu") == "numba" and resolve("torch", "cpu") == "torch"
     assert resolve("torch", "cpu") == "torch" and resolve("numba", "cpu") == "numba"
     with pytest.raises(UsageError):
@@ -327,6 +331,8 @@ def test_interpolate_backend_recorded(tmp_path):
         assert e.value.code in (0, None)
         run = json.loads((out / "fgen-run.json").read_text())
         assert run["backend"] == b
+        # the kernels are loaded (compiled on a first run) once, before the first frame
+        assert (run["kernel_load_ms"] is None) == (b == "torch")
         outs[b] = sorted(p.name for p in out.glob("*.exr"))
     assert outs["torch"] == outs["numba"] and outs["numba"]
     if EXACT:

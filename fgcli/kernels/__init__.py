@@ -36,14 +36,19 @@ def numba_available() -> bool:
 
 
 # What `auto` picks on the CPU: the kernels (bit-identical to the torch ops on FMA builds,
-# 3-4x faster per 1080p frame; docs/performance.md). A fresh install compiles them once
-# into numba's on-disk cache (tens of seconds); later processes load them in < 1 s.
+# 2-3x faster per 1080p frame; docs/performance.md) for frames of at least AUTO_MIN_PIXELS.
+# A fresh install compiles them once into numba's on-disk cache (about a minute on 2
+# cores); later processes load them in < 1 s. Below that size torch eager costs a few ms
+# per frame, so the one-time compilation would not pay for itself: auto stays torch there
+# (`--backend numba` forces the kernels).
 AUTO_CPU = "numba"
+AUTO_MIN_PIXELS = 1 << 19  # 0.5 Mpx (960x540 and up)
 
 
-def resolve(backend: str | None, device: str = "cpu") -> str:
+def resolve(backend: str | None, device: str = "cpu", pixels: int | None = None) -> str:
     """--backend value -> 'torch' or 'numba'. auto: AUTO_CPU on CPU (numba only when
-    installed), torch on CUDA. numba on a CUDA device is a usage error."""
+    installed and, when ``pixels`` (the frame area) is given, at least AUTO_MIN_PIXELS),
+    torch on CUDA. numba on a CUDA device is a usage error."""
     from fgcli.errors import UsageError
 
     b = (backend or "auto").lower()
@@ -52,6 +57,8 @@ def resolve(backend: str | None, device: str = "cpu") -> str:
     cuda = str(device).startswith("cuda")
     if b == "auto":
         if cuda or AUTO_CPU == "torch" or not numba_available():
+            return "torch"
+        if pixels is not None and pixels < AUTO_MIN_PIXELS:
             return "torch"
         return "numba"
     if b == "numba":
