@@ -287,9 +287,14 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
     t0 = time.perf_counter()
 
     def nonzero(t):
-        # one min/max pass (2x faster than count_nonzero at 1080p); NaN counts as motion
+        # NaN counts as motion. numba: a scan that stops at the first moving pixel; torch:
+        # one min/max pass (2x faster than count_nonzero at 1080p)
         if t is None or t.numel() == 0:
             return False
+        if ctx.get("backend") == "numba":
+            from fgcli.kernels.ops import any_nonzero
+
+            return any_nonzero(t)
         lo, hi = torch.aminmax(t)
         lo, hi = float(lo), float(hi)
         return not (lo == 0.0 and hi == 0.0)

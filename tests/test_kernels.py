@@ -343,3 +343,14 @@ def test_interpolate_backend_recorded(tmp_path):
             b = read_frame(str(tmp_path / "numba" / name), 1)
             for k in ("color", "depth", "mv"):
                 assert torch.equal(getattr(a, k), getattr(b, k)), (name, k)
+
+
+def test_any_nonzero_matches_the_reference():
+    # frame_facts' motion test: the early-exit kernel against count_nonzero (NaN and -0.0
+    # included, non-contiguous views)
+    z = torch.zeros(2, 5, 7)
+    cases = [z, -z, z.clone().index_put_((torch.tensor([1]), torch.tensor([4]),
+                                          torch.tensor([6])), torch.tensor(1e-30)),
+             torch.full((2, 3, 3), NAN), torch.randn(2, 4, 4), z[:, :, ::2], z.double()]
+    for t in cases:
+        assert K.any_nonzero(t) == bool(torch.count_nonzero(t) > 0), t

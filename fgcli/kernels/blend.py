@@ -157,3 +157,13 @@ def crossfade_kernel(c0, c1, d0, d1, mv1, a, ms, out_c, out_d, out_mv):
             out_d[y, x] = min(sdepth_b(d0[y, x]), sdepth_b(d1[y, x]))
             out_mv[0, y, x] = smv_b(mv1[0, y, x]) * ms
             out_mv[1, y, x] = smv_b(mv1[1, y, x]) * ms
+
+
+@njit(cache=True, nogil=True)
+def any_nonzero_kernel(a):
+    """True when any element of the flat float32 array is non-zero or NaN (early exit:
+    a moving frame answers after its first moving pixel)."""
+    for i in range(a.shape[0]):
+        if a[i] != F32(0.0):  # NaN != 0 is True
+            return True
+    return False

@@ -311,4 +311,15 @@ def warm() -> float:
     fill_extrap_holes(e, mv, dd)
     mv_warp(c, d, mv, 0.5)
     crossfade(c, c, d, d, mv, 0.5, 0.5)
+    any_nonzero(mv)
     return time.perf_counter() - t0
+
+
+def any_nonzero(t) -> bool:
+    """frame_facts' motion test: any non-zero (or NaN) element, with an early exit."""
+    if t.device.type != "cpu" or t.dtype != torch.float32:
+        lo, hi = torch.aminmax(t)
+        return not (float(lo) == 0.0 and float(hi) == 0.0)
+    from fgcli.kernels.blend import any_nonzero_kernel
+
+    return bool(any_nonzero_kernel(_a(t).reshape(-1)))
