@@ -69,6 +69,67 @@ def _lerp_b(a, b, w):
     return fma(w, b - a, a) if abs(w) < F32(0.5) else fma(w - F32(1.0), b - a, b)
 
 
+@njit(**INLINE)
+def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_static,
+            a, near_w, td, endpoint, out_d):
+    """Eq. 1 at pixel x of sample row ``ys`` (c0, c1 (3, ., W), d0, d1, v0, v1 (., W): the
+    warped samples) and frame row ``y`` (dt, mvalid, to1, to0: full frames), except the
+    brightness test: writes the depth, returns (weight, needs the brightness test)."""
+    thr_static = F32(1e-3)
+    e0 = sdepth_b(d0[ys, x])
+    e1 = sdepth_b(d1[ys, x])
+    p0 = v0[ys, x]
+    p1 = v1[ys, x]
+    agree = _agree_b(e0, e1, td)
+    take0 = e0 > e1
+    if has_dt:
+        t = sdepth_b(dt[y, x])
+        m0 = _agree_b(e0, t, td)
+        m1 = _agree_b(e1, t, td)
+        take0 = m0 if m0 != m1 else take0
+    dis = p0 & p1 & (not agree)
+    pick0 = (dis & take0) | (p0 & (not p1))
+    pick1 = (dis & (not take0)) | (p1 & (not p0))
+    none = not (p0 | p1)
+    static = False
+    if has_static:
+        static = mvalid[y, x] & \
+            (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) & \
+            (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static)
+    mid = (not (pick0 | pick1 | none)) & agree & (endpoint == 0) & (not static)
+    eqc = (sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) & \
+        (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) & \
+        (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x]))
+    wt = a
+    wt = near_w if (mid & eqc) | none else wt
+    wt = F32(0.0) if pick0 else wt
+    wt = F32(1.0) if pick1 else wt
+    take_d0 = pick0 | ((agree | none) & (not pick1) & (near_w == F32(0.0)))
+    out_d[y, x] = e0 if take_d0 else e1
+    return wt, mid & (not eqc)
+
+
+@njit(**INLINE)
+def _similar(c0, c1, ys, x, tb, table, base):
+    """Eq. 1's brightness test on the sRGB-encoded samples (scalar: six table lookups)."""
+    q0 = abs(_enc(sval(c0[0, ys, x]), table, base) - _enc(sval(c1[0, ys, x]), table, base))
+    q1 = abs(_enc(sval(c0[1, ys, x]), table, base) - _enc(sval(c1[1, ys, x]), table, base))
+    q2 = abs(_enc(sval(c0[2, ys, x]), table, base) - _enc(sval(c1[2, ys, x]), table, base))
+    bd = fma(q1, F32(1.055), (q0 + q2) * F32(0.5 * 1.055))
+    return bd <= tb
+
+
+@njit(**INLINE)
+def _out_px(c0, c1, ys, x, y, wt, endpoint, out_c):
+    """The lerp (or the endpoint frame) into out_c[:, y, x]."""
+    for k in range(3):
+        u = sval_b(c0[k, ys, x])
+        v = sval_b(c1[k, ys, x])
+        r = _lerp_b(u, v, wt)
+        r = u if endpoint == 1 else r
+        out_c[k, y, x] = v if endpoint == 2 else r
+
+
 @njit(**KERNEL)
 def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_static,
                  a, near_w, td, tb, endpoint, table, base, out_c, out_d):
@@ -79,7 +140,6 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
     brightness test for the pixels that need it (scalar: six table lookups each), the
     lerp and the outputs (vectorised)."""
     h, w = d0.shape
-    thr_static = F32(1e-3)
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
@@ -88,59 +148,14 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
         need = np.empty(w, dtype=np.bool_)
         for y in range(ya, yb):
             for x in range(w):
-                e0 = sdepth_b(d0[y, x])
-                e1 = sdepth_b(d1[y, x])
-                p0 = v0[y, x]
-                p1 = v1[y, x]
-                agree = _agree_b(e0, e1, td)
-                take0 = e0 > e1
-                if has_dt:
-                    t = sdepth_b(dt[y, x])
-                    m0 = _agree_b(e0, t, td)
-                    m1 = _agree_b(e1, t, td)
-                    take0 = m0 if m0 != m1 else take0
-                dis = p0 & p1 & (not agree)
-                pick0 = (dis & take0) | (p0 & (not p1))
-                pick1 = (dis & (not take0)) | (p1 & (not p0))
-                none = not (p0 | p1)
-                static = False
-                if has_static:
-                    static = mvalid[y, x] & \
-                        (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) & \
-                        (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static)
-                mid = (not (pick0 | pick1 | none)) & agree & (endpoint == 0) & (not static)
-                eqc = (sval_b(c0[0, y, x]) == sval_b(c1[0, y, x])) & \
-                    (sval_b(c0[1, y, x]) == sval_b(c1[1, y, x])) & \
-                    (sval_b(c0[2, y, x]) == sval_b(c1[2, y, x]))
-                wt = a
-                wt = near_w if (mid & eqc) | none else wt
-                wt = F32(0.0) if pick0 else wt
-                wt = F32(1.0) if pick1 else wt
-                wts[x] = wt
-                need[x] = mid & (not eqc)
-                take_d0 = pick0 | ((agree | none) & (not pick1) & (near_w == F32(0.0)))
-                out_d[y, x] = e0 if take_d0 else e1
+                wts[x], need[x] = _eq1_px(c0, c1, d0, d1, v0, v1, y, x, y, dt, has_dt, mvalid,
+                                          to1, to0, has_static, a, near_w, td, endpoint,
+                                          out_d)
             for x in range(w):
-                if need[x]:
-                    q0 = abs(_enc(sval(c0[0, y, x]), table, base) -
-                             _enc(sval(c1[0, y, x]), table, base))
-                    q1 = abs(_enc(sval(c0[1, y, x]), table, base) -
-                             _enc(sval(c1[1, y, x]), table, base))
-                    q2 = abs(_enc(sval(c0[2, y, x]), table, base) -
-                             _enc(sval(c1[2, y, x]), table, base))
-                    bd = fma(q1, F32(1.055), (q0 + q2) * F32(0.5 * 1.055))
-                    if bd <= tb:
-                        wts[x] = near_w
-            if endpoint == 0:
-                for x in range(w):
-                    wt = wts[x]
-                    for k in range(3):
-                        out_c[k, y, x] = _lerp_b(sval_b(c0[k, y, x]), sval_b(c1[k, y, x]), wt)
-            else:
-                src = c0 if endpoint == 1 else c1
-                for x in range(w):
-                    for k in range(3):
-                        out_c[k, y, x] = sval_b(src[k, y, x])
+                if need[x] and _similar(c0, c1, y, x, tb, table, base):
+                    wts[x] = near_w
+            for x in range(w):
+                _out_px(c0, c1, y, x, y, wts[x], endpoint, out_c)
 
 
 @njit(**KERNEL)

@@ -323,3 +323,4 @@ def any_nonzero(t) -> bool:
     from fgcli.kernels.blend import any_nonzero_kernel
 
     return bool(any_nonzero_kernel(_a(t).reshape(-1)))
+

@@ -77,22 +77,23 @@ def _nearest_depth(depth, fx, fy, xf, yf, wm1, hm1):
 
 
 @njit(**INLINE)
-def _warp_px(c, d, to, s, sd, v, x, y, xf, yf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1,
-             hm1, w, h):
+def _warp_px(c, d, to, s, sd, v, x, y, oy, xf, yf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh,
+             wm1, hm1, w, h):
     """One frame at pixel (x, y): colour (bilinear, 3 channels) and depth (nearest) along
-    ``to``; valid = inside_mask on the raw offset (NaN -> False); zero flow returns the
-    sanitised pixel exactly."""
+    ``to``, written to row ``oy`` of s, sd, v (y itself, or 0 of a row buffer); valid =
+    inside_mask on the raw offset (NaN -> False); zero flow returns the sanitised pixel
+    exactly."""
     rx = to[0, y, x]
     ry = to[1, y, x]
-    v[y, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    v[oy, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
     fx = sflow_b(rx)
     fy = sflow_b(ry)
     zero = (fx == F32(0.0)) & (fy == F32(0.0))
     y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
     for k in range(3):
         r = _bil(c, k, y0, x0, y1, x1, nw, ne, sw, se)
-        s[k, y, x] = sval_b(c[k, y, x]) if zero else r
-    sd[y, x] = _nearest_depth(d, fx, fy, xf, yf, wm1, hm1)
+        s[k, oy, x] = sval_b(c[k, y, x]) if zero else r
+    sd[oy, x] = _nearest_depth(d, fx, fy, xf, yf, wm1, hm1)
 
 
 @njit(**KERNEL)
@@ -111,12 +112,12 @@ def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
         for x in range(w):
-            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy, kx,
-                     ky, hw, hh, wm1, hm1, w, h)
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+                     kx, ky, hw, hh, wm1, hm1, w, h)
         if two:
             for x in range(w):
-                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
-                         kx, ky, hw, hh, wm1, hm1, w, h)
+                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w, h)
 
 
 @njit(**KERNEL)
@@ -149,3 +150,4 @@ def mv_warp_kernel(img, depth, mv, scale, raw_depth_flow, gxn, gyn, kx, ky, out,
             dx = rfx if raw_depth_flow else fx
             dy = rfy if raw_depth_flow else fy
             dout[y, x] = _nearest_depth(depth, dx, dy, F32(x), yf, wm1, hm1)
+
