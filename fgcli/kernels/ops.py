@@ -85,9 +85,10 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     valid = _empty(1, h, w, dtype=torch.bool)
     source = _empty(1, h, w, dtype=torch.int32)
     buf = np.empty((h + 2) * (w + 2), dtype=np.int64)
+    disp = _empty(2, h, w) if quad else to0  # (linear: unused)
     splat_kernel(_a(depth1)[0], _a(mv1), _a(mv0) if quad else _DUMMY3,
                  _a(depth0)[0] if use_d0 else _a(depth1)[0], F32(ca), F32(cb), quad, use_d0,
-                 F32(tol), buf, to1.numpy(), to0.numpy(), dt.numpy()[0], valid.numpy()[0],
+                 F32(tol), buf, disp.numpy(), to1.numpy(), to0.numpy(), dt.numpy()[0], valid.numpy()[0],
                  source.numpy()[0])
     return R.SplatResult(to1=to1, to0=to0, depth=dt, valid=valid, source=source,
                          alpha=float(a), mode=mode)
@@ -323,4 +324,3 @@ def any_nonzero(t) -> bool:
     from fgcli.kernels.blend import any_nonzero_kernel
 
     return bool(any_nonzero_kernel(_a(t).reshape(-1)))
-

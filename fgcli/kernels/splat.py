@@ -116,9 +116,9 @@ def _target(dx, dy, xf, yf, w, h):
 
 
 @njit(**INLINE)
-def _resolve_px(k, x, y, quad, depth1, mv1, mv0, depth0, ca, cb, use_d0, tol, w, h,
-                to1, to0, dout, valid, source):
-    """Target pixel (x, y) from its winning key k (I64_MAX: a hole)."""
+def _resolve_px(k, x, y, quad, depth1, mv1, disp, ca, w, to1, to0, dout, valid, source):
+    """Target pixel (x, y) from its winning key k (I64_MAX: a hole); quadratic: the
+    source's displacement as the scatter stored it in disp."""
     ok = k != I64_MAX
     lo = k & 0xFFFFFFFF
     sy = (lo >> 16) if ok else y
@@ -126,8 +126,8 @@ def _resolve_px(k, x, y, quad, depth1, mv1, mv0, depth0, ca, cb, use_d0, tol, w,
     ax = smv_b(mv1[0, sy, sx])
     ay = smv_b(mv1[1, sy, sx])
     if quad:
-        dx, dy = _disp_quad(sx, sy, F32(sx), F32(sy), ax, ay, mv0, depth0, depth1, ca, cb,
-                            use_d0, tol, w, h)
+        dx = disp[0, sy, sx]
+        dy = disp[1, sy, sx]
     else:
         dx = ax * ca
         dy = ay * ca
@@ -141,7 +141,7 @@ def _resolve_px(k, x, y, quad, depth1, mv1, mv0, depth0, ca, cb, use_d0, tol, w,
 
 
 @njit(**KERNEL)
-def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf,
+def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp,
                  to1, to0, dout, valid, source):
     """Scatter (minimum of packed keys ``depth bits << 32 | y << 16 | x`` into buf,
     (H+2)*(W+2) with an off-screen ring; the (y, x) packing orders like the flat index),
@@ -183,6 +183,8 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf,
                         ay = smv_b(mv1[1, y, x])
                         dx, dy = _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb,
                                             use_d0, tol, w, h)
+                        disp[0, y, x] = dx  # the resolve reads it back at the winner
+                        disp[1, y, x] = dy
                         qy[x], qx[x] = _target(dx, dy, xf, yf, w, h)
                         ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
                 else:
@@ -212,9 +214,9 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf,
         y = np.int64(py)
         if quad:
             for x in range(w):
-                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, True, depth1, mv1, mv0, depth0,
-                            ca, cb, use_d0, tol, w, h, to1, to0, dout, valid, source)
+                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, True, depth1, mv1, disp, ca, w,
+                            to1, to0, dout, valid, source)
         else:
             for x in range(w):
-                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, False, depth1, mv1, mv0, depth0,
-                            ca, cb, use_d0, tol, w, h, to1, to0, dout, valid, source)
+                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, False, depth1, mv1, disp, ca, w,
+                            to1, to0, dout, valid, source)
