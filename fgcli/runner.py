@@ -17,6 +17,7 @@ from fractions import Fraction
 from fgcli.errors import UsageError
 from fgcli.frame import Frame
 from fgcli.io import atomic
+from fgcli.io.layouts import RawFrame
 from fgcli.pipeline import Pipeline, Timings, describe, run_stages
 
 
@@ -148,26 +149,41 @@ class RunState:
 
 class FrameCache:
     """Reads frames on demand, prefetches the next ones on a background thread (EXR decode
-    overlaps compute), and keeps at most `keep` in memory (least recently used goes)."""
+    overlaps compute, and the start-up: see run_sequence), and keeps at most `keep` in
+    memory (least recently used goes)."""
 
     def __init__(self, reader, timings: Timings, device: str = "cpu", keep: int = 4):
+        import threading
         from concurrent.futures import ThreadPoolExecutor
 
         self.reader, self.timings, self.device, self.keep = reader, timings, device, keep
-        self.frames: dict = {}  # number -> Future[Frame]
+        self.frames: dict = {}  # number -> Future[Frame, or RawFrame until finished]
         self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fgen-read")
+        self.lock = threading.Lock()  # the reader is used by one thread at a time
+        # set once torch is loaded: until then the reader thread only decodes (numpy) and
+        # get() finishes those frames (torch tensors over the same memory)
+        self.torch_loaded = threading.Event()
+        self.split = hasattr(reader, "read_raw") and hasattr(reader, "finish")
 
-    def _load(self, n: int) -> Frame:
+    def _load(self, n: int):
         t0 = time.perf_counter()
-        f = self.reader.read(n)
+        with self.lock:
+            if self.split and not self.torch_loaded.is_set():
+                f = self.reader.read_raw(n)  # no torch: does not wait for its import
+            else:
+                f = self.reader.read(n)
         self.timings.io_read.append((time.perf_counter() - t0) * 1000.0)
         return f
 
     def prefetch(self, n: int | None) -> None:
-        if n is not None and n not in self.frames:
-            self.frames[n] = self.pool.submit(self._load, n)
-            while len(self.frames) > self.keep:
-                self.frames.pop(next(iter(self.frames)))
+        if n is None:
+            return
+        if n in self.frames:  # asked for again: most recently used (kept longest)
+            self.frames[n] = self.frames.pop(n)
+            return
+        self.frames[n] = self.pool.submit(self._load, n)
+        while len(self.frames) > self.keep:
+            self.frames.pop(next(iter(self.frames)))
 
     def get(self, n: int) -> Frame:
         if n in self.frames:
@@ -175,21 +191,37 @@ class FrameCache:
         else:
             self.prefetch(n)
         f = self.frames[n].result()
+        if isinstance(f, RawFrame):  # decoded before torch was loaded: finish it here
+            from concurrent.futures import Future
+            from contextlib import nullcontext
+
+            # finishing reads no file (almost always): no need to wait for the reader
+            # thread's current decode
+            reads = getattr(self.reader, "finish_reads", lambda n: True)(n)
+            with self.lock if reads else nullcontext():
+                f = self.reader.finish(f)
+            done = Future()
+            done.set_result(f)
+            self.frames[n] = done
         return f.to(self.device) if self.device != "cpu" else f
 
     def close(self) -> None:
-        self.pool.shutdown(wait=True)
+        # reads prefetched for frames the run no longer needs (an error, an early guess
+        # that missed) are dropped, not decoded
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 class AsyncWriter:
     """Writes frames on a background thread (EXR encode overlaps compute); at most
-    `depth` writes pending; errors surface on the next submit or on close()."""
+    `depth` writes pending; errors surface on the next submit or on close(). `threads`
+    writer threads (FGEN_WRITE_THREADS, default 1) write that many frames at once."""
 
-    def __init__(self, out, timings: Timings, depth: int = 2):
+    def __init__(self, out, timings: Timings, depth: int = 2, threads: int = 1):
         from concurrent.futures import ThreadPoolExecutor
 
         self.out, self.timings, self.depth = out, timings, depth
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fgen-write")
+        self.pool = ThreadPoolExecutor(max_workers=max(1, threads),
+                                       thread_name_prefix="fgen-write")
         self.pending: list = []
 
     def _write(self, path, frame, kw):
@@ -211,6 +243,124 @@ class AsyncWriter:
                 f.result()
         finally:
             self.pool.shutdown(wait=True)
+
+
+def _cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - non-Linux
+        return os.cpu_count() or 1
+
+
+class IOThreads:
+    """Thread counts while frames are decoded and encoded on the reader and writer threads
+    beside the compute; both settings are process-wide, and restore() puts them back.
+
+    OpenImageIO decodes/encodes a file with a pool of one thread per core by default, and
+    torch (and numba) compute with one thread per core: with the reader and writer threads
+    running beside the compute, a 2-core machine then runs 4-6 busy threads on 2 cores and
+    every one slows the others (measured per frame at 1080p on 2 cores: compute 965 ms
+    instead of 380, read 970, write 1110). While the I/O threads run:
+    - limit_io(): OpenImageIO uses `FGEN_OIIO_THREADS` threads per file (default 1: the
+      reader and the writer already run beside each other and the compute);
+    - limit_compute(): the compute uses at most `FGEN_COMPUTE_THREADS` threads (default:
+      the cores less one, at least 1), never more than it was set to (an executor's
+      per-worker setting stays).
+    restore() before the last writes (nothing else runs then: they get every core).
+    """
+
+    def __init__(self):
+        self.saved: dict = {}
+
+    @staticmethod
+    def _env(name: str, default: int) -> int:
+        try:
+            return max(1, int(os.environ.get(name, default)))
+        except ValueError:
+            raise UsageError(f"{name} must be a number of threads, not "
+                             f"'{os.environ.get(name)}'") from None
+
+    def limit_io(self) -> None:
+        import OpenImageIO as oiio
+
+        n = self._env("FGEN_OIIO_THREADS", 1)
+        for k in ("threads", "exr_threads"):
+            self.saved.setdefault(("oiio", k), oiio.get_int_attribute(k, 0))
+            oiio.attribute(k, n)
+
+    def limit_compute(self, backend: str, device: str) -> None:
+        if device.startswith("cuda"):
+            return
+        import torch
+
+        n = self._env("FGEN_COMPUTE_THREADS", max(1, _cpu_count() - 1))
+        self.saved.setdefault("torch", torch.get_num_threads())
+        torch.set_num_threads(min(self.saved["torch"], n))
+        if backend == "numba":
+            import numba
+
+            self.saved.setdefault("numba", numba.get_num_threads())
+            numba.set_num_threads(min(self.saved["numba"], n))
+
+    def restore(self) -> None:
+        for key, v in self.saved.items():
+            if key == "torch":
+                import torch
+
+                torch.set_num_threads(v)
+            elif key == "numba":
+                import numba
+
+                numba.set_num_threads(v)
+            else:
+                import OpenImageIO as oiio
+
+                oiio.attribute(key[1], v)
+        self.saved.clear()
+
+
+def read_ahead(reader, budget_mb: int | None = None) -> int:
+    """Frames the FrameCache keeps (and so reads ahead): as many as fit in
+    `FGEN_READ_AHEAD_MB` (default 512) at 8 float32 planes a frame, 4 to 16 (4 at 4K; 8
+    at 1080p: the start-up of a short 1080p run decodes every frame it needs)."""
+    if budget_mb is None:
+        try:
+            budget_mb = int(os.environ.get("FGEN_READ_AHEAD_MB", "512"))
+        except ValueError:
+            raise UsageError("FGEN_READ_AHEAD_MB must be a number of megabytes, not "
+                             f"'{os.environ.get('FGEN_READ_AHEAD_MB')}'") from None
+    w, h = getattr(reader, "width", 0) or 0, getattr(reader, "height", 0) or 0
+    frame_mb = max(w * h * 8 * 4, 1) / (1 << 20)
+    return max(4, min(16, int(budget_mb // frame_mb)))
+
+
+def first_reads(plan: dict, out, keep: int = 4) -> list[int]:
+    """The input frames a run most likely reads first, in order (at most `keep`), to start
+    decoding them before the compute libraries are loaded: those of the first copied
+    frames and jobs whose outputs will be written. A guess (resumed outputs and the history
+    of recurrent stages are known only later): a frame guessed wrong costs one read, never
+    a wrong result."""
+    def will_write(on: int) -> bool:
+        return getattr(out, "overwrite", False) or not os.path.exists(out.path_for(on))
+
+    def needed():
+        for n, on in plan["copies"]:
+            if will_write(on):
+                yield n
+        for i in plan["mine"]:
+            a, b, _, on, _ = plan["jobs"][i]
+            if will_write(on):
+                yield b
+                if a is not None:
+                    yield a
+
+    first: list[int] = []
+    for n in needed():
+        if n not in first:
+            first.append(n)
+            if len(first) >= keep:
+                break
+    return first
 
 
 def device_sync(device: str):
@@ -302,20 +452,51 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     cut_threshold: the histogram score that makes a cut candidate (default FSR 3's).
     backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve); in every
     frame's ctx["backend"]."""
+    plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
+    out.check_all([out.path_for(on) for on in plan["outputs"]])
+    timings = Timings()
+    # decode the first frames while torch loads and the stages are built (1-3 s of start-up
+    # that the reader thread would otherwise sit out)
+    threads = IOThreads()
+    threads.limit_io()
+    cache = FrameCache(reader, timings, device, keep=read_ahead(reader))
+    try:
+        for n in first_reads(plan, out, cache.keep):
+            cache.prefetch(n)
+        return _run(reader, out, pipeline, mode, plan, cache, threads, timings, emit,
+                    device, progress, out_layout, half, compression, command, chunk,
+                    on_frame, scene_cuts, cut_threshold, backend)
+    finally:
+        cache.close()
+        threads.restore()
+
+
+def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCache,
+         threads: IOThreads, timings: Timings, emit: str, device: str, progress: bool,
+         out_layout: str, half: bool, compression: str, command: str, chunk, on_frame,
+         scene_cuts: str, cut_threshold: float | None, backend: str) -> dict:
     import torch
 
     from fgcli.kernels import resolve
 
+    cache.torch_loaded.set()
     device = check_device(device)
-    backend = resolve(backend, device)
+    cache.device = device
+    backend = resolve(backend, device, reader.width * reader.height)
+    threads.limit_compute(backend, device)
+    kernel_load_s = None
+    if backend == "numba":
+        from fgcli.kernels.ops import warm
+
+        kernel_load_s = warm()
+        if kernel_load_s > 3.0:
+            print(f"fgen: compiled the numba CPU kernels in {kernel_load_s:.0f} s (once per "
+                  f"machine and fgen version; cached, later runs load them in < 1 s)",
+                  file=sys.stderr)
     stages = pipeline.build(mode)
-    plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
     numbers, step, times, m, jobs, copies, mine = (
         plan["numbers"], plan["step"], plan["times"], plan["m"], plan["jobs"], plan["copies"],
         plan["mine"])
-    out.check_all([out.path_for(on) for on in plan["outputs"]])
-    timings = Timings()
-    cache = FrameCache(reader, timings, device)
     state = RunState()
     sync = device_sync(device)
     pinfo = describe(pipeline)
@@ -330,7 +511,8 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
         if on_frame is not None and k:
             on_frame(k)
 
-    writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")))
+    writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")),
+                         threads=int(os.environ.get("FGEN_WRITE_THREADS", "1")))
     wkw = {"layout": out_layout, "half": half, "compression": compression}
     try:
         with torch.inference_mode():
@@ -360,9 +542,11 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                 a, b, t, on, prev_t = jobs[ji]
                 f1 = cache.get(b)
                 f0 = cache.get(a) if a is not None else None
-                if i + 1 < len(todo):  # decode the next pair while this one computes
-                    cache.prefetch(jobs[todo[i + 1]][1])
-                    cache.prefetch(jobs[todo[i + 1]][0])
+                # decode the next jobs' frames while this one computes (as many as the
+                # cache holds besides this pair)
+                for nxt in todo[i + 1:i + 1 + max(1, cache.keep // 2)]:
+                    cache.prefetch(jobs[nxt][1])
+                    cache.prefetch(jobs[nxt][0])
                 ctx = make_ctx(f0, f1, float(t), mode)
                 ctx["state"] = state
                 ctx["prev_time"] = float(prev_t)
@@ -387,8 +571,9 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                 written += 1
                 done(1)
     finally:
+        cache.close()  # nothing more to read
+        threads.restore()  # the writes still queued get every core
         writer.close()
-        cache.close()
     bar.close()
     reader.warn_nonfinite()
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
@@ -403,7 +588,8 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
                "scene_cuts": {"mode": scene_cuts, "candidates": timings.cuts,
                               "cuts": [c["frame"] for c in timings.cuts if c["cut"]]},
-               "command": command, "device": device, "backend": backend}
+               "command": command, "device": device, "backend": backend,
+               "kernel_load_ms": None if kernel_load_s is None else round(kernel_load_s * 1e3, 1)}
     name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
     atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))
     return summary

@@ -289,8 +289,11 @@ class MappedLayout:
         cam, _ = cameras.from_header_attributes(cpart.attributes)
         out: dict[str, np.ndarray] = {}
         valid: dict[str, np.ndarray] = {}
+        taken: set = set()  # channels a field already holds (never shared by two fields)
         for fld in want:
-            a = np.stack([arrays[r] for r in info.refs(fld)]).astype(np.float32)
+            frefs = info.refs(fld)
+            a = planes([arrays[r] for r in frefs], copy=bool(taken & set(frefs)))
+            taken.update(frefs)
             p = header.parts[info.part_of(fld)]
             mask = None if p.full_data_window else p.data_mask()[None]
             if fld == "depth":
@@ -300,7 +303,7 @@ class MappedLayout:
             elif fld in VECTOR_FIELDS:
                 ok = np.isfinite(a).all(0, keepdims=True)
                 a = _clean(a, number, fld, nonfinite)
-                a = (a * self.conv.vec_factor(fld, w, h)[:, None, None]).astype(np.float32)
+                a = _scaled(a, self.conv.vec_factor(fld, w, h))
                 if mask is not None:
                     ok = ok & mask
                     a = np.where(mask, a, 0.0).astype(np.float32)
@@ -374,7 +377,8 @@ class MappedLayout:
             if c.depth_kind == "inverse":
                 a = np.where(a > 0, c.depth_scale / a, np.inf)
             elif c.depth_kind in ("linear", "distance"):
-                a = a * c.depth_scale
+                if c.depth_scale != 1.0:  # x 1.0 changes no value: skip the pass
+                    a = a * c.depth_scale
             else:
                 raise UsageError(f"unknown depth_kind '{c.depth_kind}' "
                                  "(linear, inverse, distance)")
@@ -384,7 +388,7 @@ class MappedLayout:
                                      "the ray, which needs a camera (none in the header)",
                                      file=path, frame=number)
                 a = a * ray_cos(cam, w, h)[None]
-        return a.astype(np.float32)
+        return a.astype(np.float32, copy=False)
 
     # -- writing --------------------------------------------------------------------------
     def can_encode(self, fld: str) -> bool:
@@ -399,11 +403,12 @@ class MappedLayout:
             t = getattr(frame, fld, None)
             if t is None or fld not in self.encode_channels:
                 continue
-            a = _np(t).astype(np.float32)
+            # no copy: the writer copies every channel once, into its interleaved buffer
+            a = _np(t).astype(np.float32, copy=False)
             if fld == "depth":
                 a = self._depth_out(a, frame.camera, w, h)
             elif fld in VECTOR_FIELDS:
-                a = a / self.conv.vec_factor(fld, w, h)[:, None, None].astype(np.float32)
+                a = _divided(a, self.conv.vec_factor(fld, w, h))
             elif fld == "normal" and self.conv.normal_space == "camera":
                 if frame.camera is None:
                     raise OutputError(f"layout '{self.name}' stores camera-space normals, "
@@ -434,15 +439,62 @@ class MappedLayout:
             if c.depth_kind == "inverse":
                 a = np.where(np.isfinite(a) & (a > 0), c.depth_scale / a, 0.0)
             else:
-                a = a / c.depth_scale
+                if c.depth_scale != 1.0:  # / 1.0 changes no value: skip the pass
+                    a = a / c.depth_scale
                 sky = c.sky_value if c.sky_value is not None else c.sky_depth
                 if sky is not None:
                     a = np.where(np.isinf(a), sky, a)
-        return a.astype(np.float32)
+        return a.astype(np.float32, copy=False)
 
 
 def _np(t) -> np.ndarray:
     return t.detach().cpu().numpy() if hasattr(t, "detach") else np.asarray(t)
+
+
+def planes(arrays: list, copy: bool = False) -> np.ndarray:
+    """(C, H, W) float32 of C (H, W) planes. Planes that are consecutive slices of one
+    (N, H, W) float32 block, in order (exr.read_channels gives a span's channels so), come
+    back as a view of it (no copy) unless `copy`; others are stacked (one copy)."""
+    first = arrays[0]
+    base = first.base
+    if (not copy and isinstance(base, np.ndarray) and base.ndim == 3
+            and base.dtype == np.float32 and base.flags.c_contiguous
+            and all(a.base is base and a.shape == base.shape[1:] for a in arrays)):
+        step = base.strides[0]
+        start = base.__array_interface__["data"][0]
+        offs = [a.__array_interface__["data"][0] - start for a in arrays]
+        j0 = offs[0] // step
+        if offs[0] % step == 0 and offs == [(j0 + i) * step for i in range(len(arrays))]:
+            return base[j0:j0 + len(arrays)]
+    out = np.empty((len(arrays),) + first.shape, np.float32)
+    for i, a in enumerate(arrays):
+        out[i] = a
+    return out
+
+
+def _f32_exact(factor: np.ndarray) -> bool:
+    """True when every factor is a float32 value: a float32 product then equals the float64
+    product rounded to float32 (both are the correctly rounded exact product)."""
+    return bool((factor.astype(np.float32).astype(np.float64) == factor).all())
+
+
+def _scaled(a: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """a (C, H, W) float32 times a per-channel float64 factor, as float32: the same values
+    as (a * factor).astype(float32), without the float64 temporary where it cannot change
+    a value (factors of 1 skip the pass; factors exact in float32 multiply in float32)."""
+    factor = np.asarray(factor, np.float64)
+    if (factor == 1.0).all():
+        return a.astype(np.float32, copy=False)
+    if _f32_exact(factor):
+        return a * factor.astype(np.float32)[:, None, None]
+    return (a * factor[:, None, None]).astype(np.float32)
+
+
+def _divided(a: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """a / factor (per channel) in float32, as encode() always did; factors of 1 skip it."""
+    if (np.asarray(factor) == 1.0).all():
+        return a
+    return a / np.asarray(factor)[:, None, None].astype(np.float32)
 
 
 def _clean(arr: np.ndarray, number: int, name: str, stats: dict | None) -> np.ndarray:

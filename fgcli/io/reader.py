@@ -146,7 +146,14 @@ class SequenceReader:
         return raw
 
     def read(self, n: int) -> Frame:
-        raw = self.read_raw(n)
+        return self.finish(self.read_raw(n))
+
+    def finish(self, raw: layouts.RawFrame) -> Frame:
+        """The Frame (torch tensors, sharing the arrays' memory) of a frame read_raw() read:
+        padding outside the data window flagged, vectors chained across skipped files.
+        read() = read_raw() + finish(); read_raw() needs numpy only (no torch import), so
+        a reader thread can decode frames while torch is still being imported. finish()
+        may read other files (vector chaining): not concurrently with read_raw()."""
         f = raw.to_frame()
         if raw.data_window is not None:  # padding carries no data: say so explicitly
             import torch
@@ -180,6 +187,12 @@ class SequenceReader:
         first one): the interval frame n's vectors must span."""
         i = self.numbers.index(n)
         return n - self.numbers[i - 1] if i > 0 else self.step
+
+    def finish_reads(self, n: int) -> bool:
+        """Whether finish() of frame n may read other files (its vectors chained through
+        skipped files): only then must it not run beside read_raw() on another thread."""
+        gap, s = self.gap_before(n), self.disk_step
+        return gap > s and gap % s == 0
 
     def _span_gap(self, f: Frame) -> Frame:
         """With --frames selecting every k-th file on disk, a file's vectors span one step on
