@@ -1,6 +1,10 @@
 """Per-pixel helpers shared by the kernels: the ops' sanitising rules, element by element
 (the torch ops sanitise whole tensors only when needed; per element the result is the
-same), and float32 bit views. Every helper is inlined into the kernels."""
+same), and float32 bit views. Every helper is inlined into the kernels.
+
+The ``*_b`` rules are written as selects, not branches: a branch in a kernel's per-pixel
+body (even one never taken) stops LLVM from vectorising the row loop, which cost 2-7x at
+1080p. ``sval`` (branches) is for the scalar passes only."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,28 +23,6 @@ KERNEL = dict(cache=True, parallel=True, fastmath=False, nogil=True)
 
 
 @njit(**INLINE)
-def sdepth(v):
-    """sanitize_depth: NaN -> +inf, <= 0 (incl. -0.0, -inf) -> +0."""
-    if v != v:
-        return INF
-    if v <= F32(0.0):
-        return F32(0.0)
-    return v
-
-
-@njit(**INLINE)
-def smv(v):
-    """sanitize_mv: NaN -> 0, clamp to +-MV_MAX."""
-    if v != v:
-        return F32(0.0)
-    if v > MV_MAX:
-        return MV_MAX
-    if v < -MV_MAX:
-        return -MV_MAX
-    return v
-
-
-@njit(**INLINE)
 def sval(v):
     """sanitize_values: NaN -> 0, +-inf -> +-1e30."""
     if v != v:
@@ -53,34 +35,8 @@ def sval(v):
 
 
 @njit(**INLINE)
-def sflow(v):
-    """sanitize_flow_positions: NaN -> -4e6, clamp to +-4e6."""
-    if v != v:
-        return -FAR
-    if v > FAR:
-        return FAR
-    if v < -FAR:
-        return -FAR
-    return v
-
-
-@njit(**INLINE)
 def bits(v):
     return np.float32(v).view(np.int32)
-
-
-@njit(**INLINE)
-def clampf(v, lo, hi):
-    # torch.clamp_: max(min(v, hi), lo) for finite v
-    if v < lo:
-        return lo
-    if v > hi:
-        return hi
-    return v
-
-
-# Branch-free forms of the same rules (selects only): a branch in a kernel's per-pixel
-# body stops LLVM from vectorising the row loop, which costs 2x at 1080p.
 
 
 @njit(**INLINE)
@@ -105,6 +61,13 @@ def smv_b(v):
     r = MV_MAX if v > MV_MAX else v
     r = -MV_MAX if v < -MV_MAX else r
     return F32(0.0) if v != v else r
+
+
+@njit(**INLINE)
+def clamp_b(v, lo, hi):
+    """clamp to [lo, hi] for finite v (torch.clamp_), as selects."""
+    v = lo if v < lo else v
+    return hi if v > hi else v
 
 
 @njit(**INLINE)

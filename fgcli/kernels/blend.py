@@ -13,8 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INLINE, KERNEL, bits, sdepth, sdepth_b, smv_b, sval,
-                                   sval_b)
+from fgcli.kernels._common import F32, INLINE, KERNEL, bits, sdepth_b, smv_b, sval, sval_b
 from fgcli.kernels._intrin import fma
 
 _LO = np.float32(0.0031308)  # the clamp of fgcli.ops.blend._encode_fast

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clampf, sdepth, sdepth_b,
-                                   smv, smv_b)
+from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, smv_b
 
 # 3x3 neighbours, row-major, centre excluded (fgcli.ops.fill._NEIGH)
 NDY = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
@@ -21,13 +20,6 @@ DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
 def _d(depth, valid, y, x):
     """Gap-fill depth: sanitised, +inf at holes."""
     return sdepth_b(depth[y, x]) if valid[y, x] else INF
-
-
-@njit(**INLINE)
-def _clamp01(v, hi):
-    """clamp to [0, hi] (finite v), as selects."""
-    v = F32(0.0) if v < F32(0.0) else v
-    return hi if v > hi else v
 
 
 @njit(**KERNEL)
@@ -157,16 +149,16 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
             sy = yf + my
             inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
                 (sy < F32(h - 0.5))
-            ix = np.int64(_clamp01(np.floor(sx + F32(0.5)), wm1))
-            iy = np.int64(_clamp01(np.floor(sy + F32(0.5)), hm1))
+            ix = np.int64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
+            iy = np.int64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
             ds = sdepth_b(depth1[iy, ix])
             do = sdepth_b(depth1[y, x])
             bg = inside & (not (ds < do * f1))
             vx = mx if bg else F32(0.0)
             vy = my if bg else F32(0.0)
             dd = ds if bg else do
-            jx = np.int64(_clamp01(np.floor((xf + vx) + F32(0.5)), wm1))
-            jy = np.int64(_clamp01(np.floor((yf + vy) + F32(0.5)), hm1))
+            jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
+            jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
             o_to1[0, y, x] = to1[0, y, x] if ok else vx
             o_to1[1, y, x] = to1[1, y, x] if ok else vy
             o_to0[0, y, x] = to0[0, y, x] if ok else vx + smv_b(mv1[0, jy, jx])

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clampf, sdepth,
-                                   sdepth_b, smv, smv_b)
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clamp_b,
+                                   sdepth_b, smv_b)
 from fgcli.kernels._intrin import atomic_min_i64, fma
 
 
@@ -74,26 +74,14 @@ def dilate_kernel(depth, mv, r, dout, mvout):
 
 
 @njit(**INLINE)
-def _clamp_sel(v, lo, hi):
-    v = lo if v < lo else v
-    return hi if v > hi else v
-
-
-@njit(**INLINE)
-def _clamp_sel(v, lo, hi):
-    v = lo if v < lo else v
-    return hi if v > hi else v
-
-
-@njit(**INLINE)
 def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w, h):
     """Quadratic displacement p_t - p1 of source (x, y) with sanitised vector a: frame 0's
     vector b at the pixel nearest p1 + a (used only when p1 + a is inside, and with the
     depth check, when frame 0's depth there agrees), else b = a. Selects only."""
     use = (ax >= F32(-0.5) - xf) & (ax < F32(w - 0.5) - xf) & \
           (ay >= F32(-0.5) - yf) & (ay < F32(h - 0.5) - yf)
-    ix = np.int64(_clamp_sel(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
-    iy = np.int64(_clamp_sel(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
+    ix = np.int64(clamp_b(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
+    iy = np.int64(clamp_b(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
     bx = smv_b(mv0[0, iy, ix])
     by = smv_b(mv0[1, iy, ix])
     # depth0 is depth1 itself when the check is off (a safe read; the result is unused)
@@ -110,8 +98,8 @@ def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w
 def _target(dx, dy, xf, yf, w, h):
     """Row and column (in the (H+2) x (W+2) buffer with an off-screen ring) of the target
     pixel of a source at (xf, yf) displaced by (dx, dy)."""
-    qx = _clamp_sel(np.floor(dx + (xf + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
-    qy = _clamp_sel(np.floor(dy + (yf + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
+    qx = clamp_b(np.floor(dx + (xf + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
+    qy = clamp_b(np.floor(dy + (yf + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
     return np.int64(qy), np.int64(qx)
 
 

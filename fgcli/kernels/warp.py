@@ -11,15 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, INLINE, KERNEL, sflow_b, smv_b, sval_b
+from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sflow_b, smv_b, sval_b
 from fgcli.kernels._intrin import fma
-
-
-@njit(**INLINE)
-def _clamp_sel(v, hi):
-    """clamp to [0, hi] for finite v, as selects."""
-    v = F32(0.0) if v < F32(0.0) else v
-    return hi if v > hi else v
 
 
 @njit(**INLINE)
@@ -30,8 +23,8 @@ def _coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
     gy = fma(fy, ky, gyy)
     # unnormalise ((g + 1) * size / 2 - 0.5, one FMA as ATen's vectorised kernel is
     # compiled) and clip to the border
-    ix = _clamp_sel(fma(gx + F32(1.0), hw, F32(-0.5)), wm1)
-    iy = _clamp_sel(fma(gy + F32(1.0), hh, F32(-0.5)), hm1)
+    ix = clamp_b(fma(gx + F32(1.0), hw, F32(-0.5)), F32(0.0), wm1)
+    iy = clamp_b(fma(gy + F32(1.0), hh, F32(-0.5)), F32(0.0), hm1)
     x0f = np.floor(ix)
     y0f = np.floor(iy)
     tx = ix - x0f
@@ -64,8 +57,8 @@ def _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se):
 @njit(**INLINE)
 def _nearest_depth(depth, fx, fy, xf, yf, wm1, hm1):
     """sample_nearest of a (H, W) depth at the sanitised flow; NaN -> +inf."""
-    jx = _clamp_sel(np.floor(fx + (xf + F32(0.5))), wm1)
-    jy = _clamp_sel(np.floor(fy + (yf + F32(0.5))), hm1)
+    jx = clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1)
+    jy = clamp_b(np.floor(fy + (yf + F32(0.5))), F32(0.0), hm1)
     v = depth[np.int64(jy), np.int64(jx)]
     return INF if v != v else v
 
