@@ -38,6 +38,13 @@ HALF_MAX = 65504.0
 
 # ----------------------------------------------------------------------------- helpers
 
+def _length(x: torch.Tensor, keepdim: bool = False) -> torch.Tensor:
+    """Euclidean length over dim 0 (channels): ``sqrt(sum x^2)``. Same values as
+    ``x.norm(dim=0)``, but torch's norm reduction over the leading (strided) dimension is
+    about 80x slower on CPU (7 ms vs 0.1 ms for a (3, 144, 256) tensor, one thread)."""
+    return (x * x).sum(dim=0, keepdim=keepdim).sqrt()
+
+
 def _footprint(pos: torch.Tensor, h: int, w: int, thr: float = TAP_THRESHOLD):
     """Bilinear footprint of positions pos (2, N) (index coords): four (flat index into a
     (h+2) x (w+2) buffer with a discard ring, mask) pairs; a tap is written when its
@@ -107,7 +114,7 @@ def reconstruct_depths(depth: torch.Tensor, mv: torch.Tensor, alpha: float = 0.5
     h, w = depth.shape[-2:]
     d = sanitize_depth(depth).reshape(-1)
     v = sanitize_mv(mv).reshape(2, -1)
-    v = v * (v.norm(dim=0, keepdim=True) >= short_mv)
+    v = v * (_length(v, keepdim=True) >= short_mv)
     p = _positions(h, w, depth.device)
     outs = []
     for k in (1.0, 1.0 - a):
@@ -132,7 +139,7 @@ def depth_priority(depth: torch.Tensor) -> torch.Tensor:
 def magnitude_priority(vec: torch.Tensor, scale: float = 8.0) -> torch.Tensor:
     """10-bit priority of an optical-flow vector from its magnitude m (px): moving content
     wins over static, ``max(1, floor(1023 m / (m + scale)))``. (2, ...) -> (1, ...) int64."""
-    m = sanitize_mv(vec).norm(dim=0, keepdim=True)
+    m = _length(sanitize_mv(vec), keepdim=True)
     return (1023.0 * m / (m + scale)).floor().clamp(1.0, 1023.0).to(torch.int64)
 
 
@@ -197,7 +204,7 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
         for c in (0, 1):
             buf[c].scatter_reduce_(0, idx, keys[c] * m, reduce="amax")
     if secondary and max_secondary > 0:
-        dist = (vf * (1.0 - a)).norm(dim=0)
+        dist = _length(vf * (1.0 - a))
         steps = int(min(max_secondary, math.floor(float(dist.max())) if dist.numel() else 0))
         if steps >= 1:
             prim = buf[0] >= (1 << 31)  # primary texels (flag = bit 31)
@@ -299,11 +306,11 @@ def _block_level(cur, prev, pred, block, search, subpixel=False, keep=False):
     ci = curb.to(torch.int16)
     wi = wins.to(torch.int16)
     cost = torch.empty(ci.shape[0], n_off, n_off, dtype=torch.int32, device=dev)
+    ci4 = ci[:, :, None, :]  # (N, b, 1, b)
     for dy in range(n_off):
-        rows = wi[:, dy:dy + block, :].contiguous()
-        for dx in range(n_off):
-            cost[:, dy, dx] = (rows[:, :, dx:dx + block] - ci).abs_().sum(dim=(1, 2),
-                                                                         dtype=torch.int32)
+        # every horizontal offset at once: (N, b, n_off, b) windows of the rows
+        rows = wi[:, dy:dy + block, :].unfold(2, block, 1)
+        cost[:, dy, :] = (rows - ci4).abs_().sum(dim=(1, 3), dtype=torch.int32)
     off = (torch.arange(n_off, device=dev) - search).abs().to(torch.int32)
     # ties go to the smallest offset (a static block stays static): exact integer keys
     cost = cost * 64 + (off[:, None] + off[None, :])  # (N, dy, dx)
@@ -486,8 +493,8 @@ def color_similarity(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> tor
     """FSR 3's colour similarity ``dot(a/m, b/m)``, m = max(|a|, |b|) (RGB lengths):
     1 for equal colours (both black included), smaller as they differ.
     (3, H, W) x2 -> (1, H, W)."""
-    na = a.norm(dim=0, keepdim=True)
-    nb = b.norm(dim=0, keepdim=True)
+    na = _length(a, keepdim=True)
+    nb = _length(b, keepdim=True)
     m = torch.maximum(na, nb)
     s = (a * b).sum(dim=0, keepdim=True) / (m * m).clamp(min=eps)
     return torch.where(m <= eps, torch.ones_like(s), s)

@@ -132,7 +132,7 @@ class FSR3OpticalFlow(Stage):
             f = upsample_block_flow(block_flow(l0, l1, self.levels, 8, self.search,
                                                self.median, self.subpixel), h, w, 8)
         if self.min_flow > 0:
-            f = f * (f.norm(dim=0, keepdim=True) > self.min_flow)
+            f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
         field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
         vec, prio, valid = unpack_vector_field(field)
         if not bool(valid.all()):
