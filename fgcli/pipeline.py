@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -33,8 +34,11 @@ try:
 except ModuleNotFoundError:  # pragma: no cover - python < 3.11
     import tomli as tomllib
 
+# the checkout's pipelines/ (source and editable installs), then the copy a wheel installs
+# under <prefix>/share/fgen/pipelines (pyproject's data-files)
 PIPELINE_DIRS = [os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                              "pipelines")]
+                              "pipelines"),
+                 os.path.join(sys.prefix, "share", "fgen", "pipelines")]
 TOP_KEYS = {"name", "description", "modes", "stage", "paper", "requires"}
 STAGE_KEYS = {"use", "id", "modes"}
 FINAL_OUTPUTS = ("color", "depth", "mv")
