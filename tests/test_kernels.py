@@ -354,3 +354,22 @@ def test_any_nonzero_matches_the_reference():
              torch.full((2, 3, 3), NAN), torch.randn(2, 4, 4), z[:, :, ::2], z.double()]
     for t in cases:
         assert K.any_nonzero(t) == bool(torch.count_nonzero(t) > 0), t
+
+
+@pytest.mark.slow
+def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
+    # a fresh install (empty numba cache, ~50 s): warm() compiles every kernel, split
+    # between two processes; a second process then only loads them (no cache misses)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    code = ("from fgcli.kernels import ops, splat, warp, blend, fill; ops.warm(); "
+            "ks = (splat.splat_kernel, warp.warp_kernel, blend.blend_kernel, "
+            "fill.gap_fill_kernel, warp.mv_warp_kernel, fill.extrap_fill_kernel); "
+            "print(sum(sum(k.stats.cache_misses.values()) for k in ks), ops._cache_cold())")
+    outs = []
+    for _ in range(2):
+        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, timeout=900)
+        assert r.returncode == 0, r.stderr[-2000:]
+        outs.append(r.stdout.split())
+    assert outs[0][-1] == "False", outs  # the first run wrote every kernel's cache index
+    assert outs[1] == ["0", "False"], outs  # the second compiled nothing
