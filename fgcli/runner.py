@@ -486,8 +486,12 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     threads.limit_compute(backend, device)
     kernel_load_s = None
     if backend == "numba":
-        from fgcli.kernels.ops import warm
+        from fgcli.kernels.ops import _cache_cold, warm
 
+        if _cache_cold():
+            print("fgen: compiling the numba CPU kernels (first run of this fgen version on "
+                  "this machine: about a minute on 2 cores; --backend torch skips them)",
+                  file=sys.stderr)
         kernel_load_s = warm()
         if kernel_load_s > 3.0:
             print(f"fgen: compiled the numba CPU kernels in {kernel_load_s:.0f} s (once per "

@@ -373,3 +373,19 @@ def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
         outs.append(r.stdout.split())
     assert outs[0][-1] == "False", outs  # the first run wrote every kernel's cache index
     assert outs[1] == ["0", "False"], outs  # the second compiled nothing
+
+
+def test_cold_cache_is_announced_before_compiling(tmp_path, monkeypatch, capsys):
+    # a first run says it is compiling before the pause, not only after it
+    from fgcli.cli import main
+    from fgcli.kernels import ops as kops
+
+    seen = []
+    monkeypatch.setattr(kops, "_cache_cold", lambda: True)
+    monkeypatch.setattr(kops, "warm", lambda: seen.append(capsys.readouterr().err) or 0.01)
+    src = os.path.join(ROOT, "sample_data", "blade", "input")
+    with pytest.raises(SystemExit) as e:
+        main(["interpolate", src, str(tmp_path / "o"), "--frames", "0-2x2", "--backend",
+              "numba", "--no-progress"])
+    assert e.value.code in (0, None)
+    assert seen and "compiling the numba CPU kernels" in seen[0]
