@@ -485,7 +485,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     backend = resolve(backend, device, reader.width * reader.height)
     threads.limit_compute(backend, device)
     kernel_load_s = None
-    if backend == "numba":
+    if backend == "numba" and any(st.uses_kernels for _, st in pipeline.build(mode)):
         from fgcli.kernels.ops import _cache_cold, warm
 
         if _cache_cold():

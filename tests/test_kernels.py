@@ -389,3 +389,25 @@ def test_cold_cache_is_announced_before_compiling(tmp_path, monkeypatch, capsys)
               "numba", "--no-progress"])
     assert e.value.code in (0, None)
     assert seen and "compiling the numba CPU kernels" in seen[0]
+
+
+def test_stages_declare_their_kernels(tmp_path):
+    # the runner loads (or compiles) the kernels only for pipelines with a stage that
+    # calls them: every stage that dispatches through op() must say so
+    import inspect
+
+    from fgcli.cli import main
+    from fgcli.stages.base import load_all
+
+    for name, cls in load_all().items():
+        calls = 'op("' in inspect.getsource(cls)
+        assert cls.uses_kernels == calls, name
+    import json
+
+    src = os.path.join(ROOT, "sample_data", "blade", "input")
+    with pytest.raises(SystemExit) as e:
+        main(["interpolate", src, str(tmp_path / "o"), "--frames", "0-2x2", "--backend",
+              "numba", "--pipeline", "repeat", "--no-progress"])
+    assert e.value.code in (0, None)
+    run = json.loads((tmp_path / "o" / "fgen-run.json").read_text())
+    assert run["backend"] == "numba" and run["kernel_load_ms"] is None

@@ -77,6 +77,9 @@ class Stage:
     # 0: no state; None: every job since the start of the sequence. The runner replays
     # them (computed, not written) when a run starts mid-sequence (--chunk, --resume).
     history: ClassVar[int | None] = 0
+    # True for stages that call compiled kernels (fgcli.kernels.op): the runner loads (or
+    # compiles) the kernels only for pipelines that have one
+    uses_kernels: ClassVar[bool] = False
 
     def __init__(self, where: str = "", **opts):
         table = {o.name: o for o in self.options}

@@ -43,6 +43,7 @@ class Repeat(Stage):
 @register
 class CrossFade(Stage):
     name = "crossfade"
+    uses_kernels = True
     help = "Baseline: linear cross-fade (1 - alpha) c0 + alpha c1."
     inputs = ("color0", "color1", "depth0", "depth1", "mv1", "alpha")
     optional_inputs = ("prev_time",)
@@ -61,6 +62,7 @@ class CrossFade(Stage):
 @register
 class MVWarp(Stage):
     name = "mv_warp"
+    uses_kernels = True
     help = ("Baseline: backward-warp the nearest rendered frame by its scaled MVs (vector "
             "field treated as static in screen space).")
     inputs = ("color1", "depth1", "mv1", "alpha", "mode")

@@ -20,6 +20,7 @@ class _HoleStage(Stage):
 @register
 class Dilate(Stage):
     name = "dilate"
+    uses_kernels = True
     help = "3x3 nearest-depth dilation of frame 1's depth and MVs (Mob-FGSR, FSR 3)."
     inputs = ("depth1", "mv1")
     outputs = ("depth1_d", "mv1_d")
@@ -43,6 +44,7 @@ class Dilate(Stage):
 @register
 class Splat(Stage):
     name = "splat"
+    uses_kernels = True
     help = ("Depth-aware forward splat of frame 1's motion to the generated time, nearest "
             "surface wins (packed int64 keys, scatter_reduce amin).")
     inputs = ("depth1_d", "mv1_d", "alpha", "mode")
@@ -99,6 +101,7 @@ class Splat(Stage):
 @register
 class GapFill(_HoleStage):
     name = "gap_fill"
+    uses_kernels = True
     help = ("Mob-FGSR refinement: fill splat cracks inside nearer surfaces (2x2-block rule); "
             "remaining holes fall back to linear motion of the previous vector.")
     inputs = ("motion",)
@@ -130,6 +133,7 @@ class GapFill(_HoleStage):
 @register
 class ExtrapHoleFill(_HoleStage):
     name = "extrap_fill"
+    uses_kernels = True
     help = ("Mob-FGSR extrapolation disocclusion rule: a hole takes frame 1's vector at the "
             "pixel if the surface it points to is background, else zero motion.")
     inputs = ("motion", "mv1", "depth1_d")
@@ -146,6 +150,7 @@ class ExtrapHoleFill(_HoleStage):
 @register
 class Warp(Stage):
     name = "warp"
+    uses_kernels = True
     help = "Backward-warp the rendered frames (color and depth) along the generated motion."
     inputs = ("motion", "color1", "depth1")
     optional_inputs = ("color0", "depth0")
@@ -184,6 +189,7 @@ class Warp(Stage):
 @register
 class Blend(Stage):
     name = "blend"
+    uses_kernels = True
     help = ("Mob-FGSR Eq. 1 bidirectional blend: same surface and similar brightness -> "
             "temporally nearer frame, else lerp by alpha; different surfaces -> farther "
             "(disoccluded background). Extrapolation: the frame-1 sample.")

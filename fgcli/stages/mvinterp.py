@@ -8,6 +8,7 @@ from fgcli.stages.base import Option, Stage, register
 @register
 class Guide(Stage):
     name = "guide"
+    uses_kernels = True
     help = ("mv-interp guiding flows (seed 000 §3.1, splat 'following Mob-FGSR'): the "
             "Mob-FGSR motion chain (dilate, quadratic splat, gap fill, holes from frame 0's "
             "vectors; linear and frame 1's vectors without them) and the cue channels "
