@@ -484,8 +484,9 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     cache.device = device
     backend = resolve(backend, device, reader.width * reader.height)
     threads.limit_compute(backend, device)
+    stages = pipeline.build(mode)
     kernel_load_s = None
-    if backend == "numba" and any(st.uses_kernels for _, st in pipeline.build(mode)):
+    if backend == "numba" and any(st.uses_kernels for _, st in stages):
         from fgcli.kernels.ops import _cache_cold, warm
 
         if _cache_cold():
@@ -497,7 +498,6 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
             print(f"fgen: compiled the numba CPU kernels in {kernel_load_s:.0f} s (once per "
                   f"machine and fgen version; cached, later runs load them in < 1 s)",
                   file=sys.stderr)
-    stages = pipeline.build(mode)
     numbers, step, times, m, jobs, copies, mine = (
         plan["numbers"], plan["step"], plan["times"], plan["m"], plan["jobs"], plan["copies"],
         plan["mine"])

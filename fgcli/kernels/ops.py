@@ -272,21 +272,12 @@ def crossfade(color0, color1, depth0, depth1, mv1, alpha, mv_scale):
 def guiding_flows(depth1, mv1, alpha, mv0=None, depth0=None):
     """fgcli.ops.mvinterp.guiding_flows with the dilation, splat and gap fill kernels (the
     same chain, so the same result)."""
-    if not _cpu(depth1, mv1, mv0, depth0):
-        from fgcli.ops.mvinterp import guiding_flows as ref
+    from fgcli.ops import mvinterp as MI
 
-        return ref(depth1, mv1, alpha, mv0, depth0)
-    a = check_alpha(alpha)
-    check_tensor(depth1, "depth1", 1, allow_batch=False)
-    check_tensor(mv1, "mv1", 2, allow_batch=False)
-    d1, m1 = dilate_nearest_depth(depth1, mv1, 1)
-    if mv0 is not None:
-        r = splat_motion(d1, m1, mv0, a, model="quadratic", mode="interp", depth0=depth0)
-        r = gap_fill(r, 0.01, "nearest", mv0, depth0 if depth0 is not None else depth1)
-    else:
-        r = splat_motion(d1, m1, None, a, model="linear", mode="interp")
-        r = gap_fill(r, 0.01, "nearest", R.sanitize_mv(mv1), depth1)
-    return r.to0, r.to1, r.holes.clone()
+    if not _cpu(depth1, mv1, mv0, depth0):
+        return MI.guiding_flows(depth1, mv1, alpha, mv0, depth0)
+    return MI.guiding_chain(dilate_nearest_depth, splat_motion, gap_fill, depth1, mv1, alpha,
+                            mv0, depth0)
 
 
 # ----------------------------------------------------------------------------- start-up

@@ -46,16 +46,23 @@ def guiding_flows(depth1: torch.Tensor, mv1: torch.Tensor, alpha: float,
         to0, to1: (2, H, W): sample frame 0 at ``q + to0`` and frame 1 at ``q + to1``.
         holes: (1, H, W) bool, pixels no splat or gap fill reached.
     """
+    return guiding_chain(dilate_nearest_depth, splat_motion, gap_fill, depth1, mv1, alpha,
+                         mv0, depth0)
+
+
+def guiding_chain(dilate, splat, fill, depth1, mv1, alpha, mv0=None, depth0=None):
+    """guiding_flows with the three motion ops given (these torch ops, or the numba
+    kernels of fgcli.kernels.ops: the same chain either way)."""
     a = check_alpha(alpha)
     check_tensor(depth1, "depth1", 1, allow_batch=False)
     check_tensor(mv1, "mv1", 2, allow_batch=False)
-    d1, m1 = dilate_nearest_depth(depth1, mv1, 1)
+    d1, m1 = dilate(depth1, mv1, 1)
     if mv0 is not None:
-        r = splat_motion(d1, m1, mv0, a, model="quadratic", mode="interp", depth0=depth0)
-        r = gap_fill(r, 0.01, "nearest", mv0, depth0 if depth0 is not None else depth1)
+        r = splat(d1, m1, mv0, a, model="quadratic", mode="interp", depth0=depth0)
+        r = fill(r, 0.01, "nearest", mv0, depth0 if depth0 is not None else depth1)
     else:
-        r = splat_motion(d1, m1, None, a, model="linear", mode="interp")
-        r = gap_fill(r, 0.01, "nearest", sanitize_mv(mv1), depth1)
+        r = splat(d1, m1, None, a, model="linear", mode="interp")
+        r = fill(r, 0.01, "nearest", sanitize_mv(mv1), depth1)
     return r.to0, r.to1, r.holes.clone()
 
 
