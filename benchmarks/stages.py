@@ -47,6 +47,13 @@ def main():
     ap.add_argument("--backends", default="torch,numba",
                     help="comma-separated backends, timed side by side (the last is the one "
                          "the JSON's top-level figures report)")
+    ap.add_argument("--device", default="cpu",
+                    help="cpu, or cuda[:N]: the torch backend on the GPU (issue 9 item 6); "
+                         "every stage is synchronised before its clock is read")
+    ap.add_argument("--sync-report", action="store_true",
+                    help="CUDA: run each pipeline once more under torch's sync debug mode and "
+                         "list every host round-trip the stages make (file:line, stage); the "
+                         "per-frame facts (motion test, scene-cut histogram) are counted apart")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write the figures as JSON: {copy_ms, pipelines: {name: {mode: "
                          "{ms_per_frame, x_copy, stages, backends: {torch: ..., numba: ...}}}}}")
@@ -61,7 +68,9 @@ def main():
 
     from fgcli.runner import check_device
 
-    check_device("cpu")  # what fgen does at start-up (allocator tuning)
+    dev = check_device(args.device)  # what fgen does at start-up (allocator tuning)
+    cuda = dev.startswith("cuda")
+    sync = torch.cuda.synchronize if cuda else None
     if args.threads:
         torch.set_num_threads(args.threads)
     W, H = (int(v) for v in args.size.lower().split("x"))
@@ -78,16 +87,28 @@ def main():
                          normal=None, albedo=None, roughness=None, alpha=None)
 
     f0, f1 = (up(f) for f in small)
-    print(f"# {W}x{H}, torch {torch.__version__}, {torch.get_num_threads()} threads; frames from "
+    host1 = f1
+    if cuda:
+        f0, f1 = f0.to(dev), f1.to(dev)
+        torch.cuda.synchronize()
+    where = (f"{torch.cuda.get_device_name(dev)}" if cuda else
+             f"{torch.get_num_threads()} threads")
+    print(f"# {W}x{H}, torch {torch.__version__}, {where}; frames from "
           f"{os.path.basename(args.scene)} rendered at 1/4 size and upscaled "
           f"(render {render_ms:.0f} ms/frame, not counted)")
 
-    ref = median_ms(lambda: (f1.color.clone(), f1.depth.clone(), f1.mv.clone()), args.repeat)
+    def copy_frame():
+        out = (f1.color.clone(), f1.depth.clone(), f1.mv.clone())
+        if sync is not None:
+            sync()
+        return out
+
+    ref = median_ms(copy_frame, args.repeat)
     print(f"reference: copy one frame's color+depth+mv tensors = {ref:.2f} ms\n")
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "f.0001.exr")
-        w_ms = median_ms(lambda: write_frame(path, f1), max(3, args.repeat // 2))
+        w_ms = median_ms(lambda: write_frame(path, host1), max(3, args.repeat // 2))
         r_ms = median_ms(lambda: read_frame(path, 1, fields={"color", "depth", "mv"}),
                          max(3, args.repeat // 2))
         size_mb = os.path.getsize(path) / 1e6
@@ -102,19 +123,23 @@ def main():
 
     code = "from fgcli.kernels.ops import warm; print(warm())"
     loads = []
-    for _ in range(2):
+    for _ in range(0 if cuda else 2):  # CUDA runs the torch ops: no CPU kernels to load
         r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                            cwd=ROOT)
         loads.append(float(r.stdout.strip().splitlines()[-1]) * 1000 if r.returncode == 0
                      else float("nan"))
-    print(f"numba kernels, fresh process: first {loads[0]:.0f} ms (compiles when the cache is "
-          f"cold), then {loads[1]:.0f} ms (cached)\n")
+    if not loads:
+        loads = [float("nan")] * 2
+    else:
+        print(f"numba kernels, fresh process: first {loads[0]:.0f} ms (compiles when the cache "
+              f"is cold), then {loads[1]:.0f} ms (cached)\n")
     names = list(pl.available()) if args.pipelines == "all" else args.pipelines.split(",")
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     from fgcli.kernels import resolve
 
-    backends = [resolve(b, "cpu") for b in backends]
+    backends = list(dict.fromkeys(resolve(b, dev) for b in backends))  # CUDA: torch only
     result = {"size": [W, H], "threads": torch.get_num_threads(), "torch": torch.__version__,
+              "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
               "kernel_load_ms": {"first_process": loads[0], "cached": loads[1]},
               "pipelines": {}}
@@ -122,6 +147,7 @@ def main():
     print(f"| pipeline | mode | {cols} | speed-up | stages (median ms, "
           f"{' / '.join(backends)}) |")
     print("|---|---|" + "---|---|" * len(backends) + "---|---|")
+    sync_lines, stream_lines = [], []
     with torch.inference_mode():
         for name in names:
             p = pl.load(name)
@@ -140,7 +166,7 @@ def main():
                             ctx["state"] = None
                             ctx["backend"] = b
                             t0 = time.perf_counter()
-                            run_stages(stages, ctx, tms[b])
+                            run_stages(stages, ctx, tms[b], sync=sync)
                             if k == 0:
                                 first[b] = (time.perf_counter() - t0) * 1000.0
                 except Exception as e:  # noqa: BLE001 - a benchmark reports and goes on
@@ -158,6 +184,25 @@ def main():
                     "ms_per_frame": entry[main_b]["ms_per_frame"],
                     "x_copy": entry[main_b]["x_copy"], "backend": main_b,
                     "stages": entry[main_b]["stages"], "backends": entry}
+                if cuda:
+                    # frames back to back with no clock read between stages or frames, one
+                    # synchronise at the end: what a run costs when the GPU is never idle
+                    # waiting for the host (the per-frame facts still read back once)
+                    def frames(n):
+                        for _ in range(n):
+                            ctx = make_ctx(f0, f1, 0.5, mode)
+                            ctx.update(prev_time=0.0, state=None, backend=main_b)
+                            run_stages(stages, ctx, None)
+                        torch.cuda.synchronize()
+
+                    frames(2)
+                    t0 = time.perf_counter()
+                    frames(4 * args.repeat)
+                    thr = (time.perf_counter() - t0) * 1000.0 / (4 * args.repeat)
+                    result["pipelines"][p.label][mode]["stream_ms_per_frame"] = thr
+                    stream_lines.append(f"{p.label} {mode}: {thr:.2f} ms/frame streamed "
+                                        f"({entry[main_b]['ms_per_frame']:.2f} with a clock "
+                                        f"read after every stage)")
                 figs = " | ".join(f"{entry[b]['ms_per_frame']:.1f} | {entry[b]['x_copy']:.1f}"
                                   for b in backends)
                 sp = (entry[backends[0]]["ms_per_frame"] / max(entry[main_b]["ms_per_frame"], 1e-9)
@@ -166,13 +211,98 @@ def main():
                                                     for b in backends)
                                for k in summ[main_b]["stages"])
                 print(f"| {p.label} | {mode} | {figs} | {sp:.1f}x | {st} |")
+                if cuda and args.sync_report:
+                    try:
+                        rep = sync_report(stages, f0, f1, mode, backends[-1])
+                    except Exception as e:  # noqa: BLE001 - reported, the run goes on
+                        import traceback
+
+                        traceback.print_exc()
+                        sync_lines.append(f"{p.label} {mode}: report failed: {e}")
+                        continue
+                    result["pipelines"][p.label][mode]["host_syncs"] = rep
+                    vs = ", ".join(f"{k} max {v['max_abs']:.2g} mean {v['mean_abs']:.2g}"
+                                   for k, v in rep["vs_cpu"].items())
+                    sync_lines.append(f"{p.label} {mode}: facts {rep['facts']}, stages "
+                                      f"{rep['stages']}; vs CPU: {vs}" + "".join(
+                                          f"\n    {n} x {site}" for site, n in rep["sites"]))
                 sys.stdout.flush()
+    if stream_lines:
+        print("\n" + "\n".join(stream_lines))
+    if sync_lines:
+        print("\nhost round-trips per generated frame (torch sync debug mode):")
+        print("\n".join(sync_lines))
     if args.json:
         import json
 
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)
         print(f"\n(JSON: {args.json})")
+
+
+def sync_report(stages, f0, f1, mode, backend) -> dict:
+    """Host round-trips of one generated frame on CUDA: torch's sync debug mode warns at
+    every synchronising call; each warning is attributed to the innermost fgcli frame of
+    the Python stack (file:line) and the stage file that called it. Also runs the frame
+    through the same stages on the CPU and reports how far the outputs are apart."""
+    import traceback
+    import warnings
+
+    import torch
+
+    from fgcli.pipeline import frame_facts, run_stages
+    from fgcli.runner import make_ctx
+
+    ctx = make_ctx(f0, f1, 0.5, mode)
+    ctx.update(prev_time=0.0, state=None, backend=backend)
+    sites: dict = {}
+    counts = {"facts": 0, "stages": 0}
+    phase = ["facts"]
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if "synchroniz" not in str(message):
+            return
+        counts[phase[0]] += 1
+        stack = traceback.extract_stack()[:-1]
+        here = [f for f in stack if "fgcli" in f.filename]
+        site = (f"{os.path.relpath(here[-1].filename, ROOT)}:{here[-1].lineno}" if here
+                else f"{filename}:{lineno}")
+        via = [f for f in stack if os.sep + "stages" + os.sep in f.filename]
+        if via and via[-1] is not here[-1]:
+            site += f" (from {os.path.basename(via[-1].filename)}:{via[-1].lineno})"
+        sites[(phase[0], site)] = sites.get((phase[0], site), 0) + 1
+
+    old = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            torch.cuda.synchronize()
+            torch.cuda.set_sync_debug_mode("warn")
+            try:
+                facts = frame_facts(ctx)
+                phase[0] = "stages"
+                run_stages(stages, ctx, None, facts=facts)
+            finally:
+                torch.cuda.set_sync_debug_mode("default")
+    finally:
+        warnings.showwarning = old
+    # the same frame through the same stages on the CPU (torch reference): how far apart
+    cpu = make_ctx(f0.to("cpu"), f1.to("cpu"), 0.5, mode)
+    cpu.update(prev_time=0.0, state=None, backend="torch")
+    run_stages(stages, cpu, None)
+    diff = {}
+    for k in ("color", "depth", "mv"):
+        a, b = ctx[k].float().cpu(), cpu[k].float()
+        fin = torch.isfinite(a) & torch.isfinite(b)
+        same_inf = (a == b) | fin
+        d = (a - b).abs()[fin]
+        diff[k] = {"max_abs": float(d.max()) if d.numel() else 0.0,
+                   "mean_abs": float(d.mean()) if d.numel() else 0.0,
+                   "frac_over_1e-3": float((d > 1e-3).float().mean()) if d.numel() else 0.0,
+                   "nonfinite_mismatch": int((~same_inf).sum())}
+    return {**counts, "sites": sorted(((f"[{ph}] {s}", n) for (ph, s), n in sites.items()),
+                                      key=lambda x: -x[1]), "vs_cpu": diff}
 
 
 if __name__ == "__main__":

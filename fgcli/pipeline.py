@@ -290,6 +290,14 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
 
     t0 = time.perf_counter()
 
+    from fgcli.ops._util import reads_back
+
+    mv1, mv0 = ctx.get("mv1"), ctx.get("mv0")
+    detect_cuts = (detect_cuts and ctx.get("scene_cuts", "auto") != "off"
+                   and ctx.get("color0") is not None)
+    score = None
+    on_host = reads_back(ctx["color1"])
+
     def nonzero(t):
         # NaN counts as motion. numba: a scan that stops at the first moving pixel; torch:
         # one min/max pass (2x faster than count_nonzero at 1080p)
@@ -303,20 +311,45 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
         lo, hi = float(lo), float(hi)
         return not (lo == 0.0 and hi == 0.0)
 
-    mv1 = ctx.get("mv1")
-    any_motion = nonzero(mv1)
-    mv0 = ctx.get("mv0")
+    if on_host:
+        any_motion, history_motion = nonzero(mv1), nonzero(mv0)
+    else:
+        # on a GPU every value read back is a host round-trip: the motion tests and the
+        # scene-cut histogram score come back together, in one transfer per frame
+        from fgcli.ops.scene import scene_change_score_tensor
+
+        vals, slots = [], {}
+        for key, t in (("mv1", mv1), ("mv0", mv0)):
+            if t is not None and t.numel():
+                slots[key] = len(vals)
+                vals.extend(torch.aminmax(t))
+        if detect_cuts:
+            slots["score"] = len(vals)
+            vals.append(scene_change_score_tensor(ctx["color0"], ctx["color1"]))
+        got = torch.stack([v.float() for v in vals]).tolist() if vals else []
+
+        def moved(key):
+            i = slots.get(key)
+            return i is not None and not (got[i] == 0.0 and got[i + 1] == 0.0)
+
+        any_motion, history_motion = moved("mv1"), moved("mv0")
+        score = got[slots["score"]] if "score" in slots else None
+        if "mv1" in slots:  # largest |component| of frame 1's vectors (NaN: unknown)
+            i = slots["mv1"]
+            mv1_absmax = max(abs(got[i]), abs(got[i + 1]))
     facts = {"any_motion": any_motion,
              "has_history": ctx.get("color0") is not None,
-             "history_motion": nonzero(mv0)}
-    detect_cuts = detect_cuts and ctx.get("scene_cuts", "auto") != "off"
-    if detect_cuts and ctx.get("color0") is not None:
+             "history_motion": history_motion}
+    if not on_host and mv1 is not None and mv1.numel():
+        facts["mv1_absmax"] = mv1_absmax
+    if detect_cuts:
         from fgcli.ops import confirm_cut
 
         # FSR 3's histogram rule finds candidates; a candidate is a cut only when neither a
         # repeat, the frame's own vectors nor a cheap optical flow explain the new frame
         chk = confirm_cut(ctx["color0"], ctx["color1"], ctx.get("mv1"),
-                          float(ctx.get("scene_cut_threshold", SCENE_CUT_THRESHOLD)))
+                          float(ctx.get("scene_cut_threshold", SCENE_CUT_THRESHOLD)),
+                          score=score)
         facts["scene_change"] = chk["score"]
         facts["scene_cut"] = chk["cut"]
         if chk["candidate"]:

@@ -131,10 +131,29 @@ def aux(h: int, w: int, device) -> dict:
 EXACT_F32 = 1 << 24
 
 
+def reads_back(t: torch.Tensor) -> bool:
+    """Whether a data-dependent shortcut may read a value of ``t`` back to Python.
+
+    On the CPU a reduction read back is cheap and lets an op skip work it does not need
+    (a sanitising copy of clean data, a hole pass without holes). On a GPU every such read
+    is a host round-trip that stalls the stream, so there the ops take their dense,
+    branch-free path instead, which gives the same values (issue 9: no host round-trips
+    inside a pipeline; `benchmarks/stages.py --device cuda --sync-report` counts them).
+    ``FORCE_DENSE`` makes the CPU take that path too (tests compare the two)."""
+    return t.device.type == "cpu" and not FORCE_DENSE
+
+
+# tests set this to run the GPU (dense, no read-back) paths on the CPU
+FORCE_DENSE = False
+
+
 def flow_is_clean(flow: torch.Tensor, limit: float = MV_MAX) -> bool:
-    """True when every value is finite and within +-limit (two cheap reductions)."""
+    """True when every value is finite and within +-limit (two cheap reductions). Off the
+    CPU (see reads_back) it answers False without looking: the caller sanitises."""
     if flow.numel() == 0:
         return True
+    if not reads_back(flow):
+        return False
     hi, lo = float(flow.amax()), float(flow.amin())  # NaN propagates -> False below
     return hi <= limit and lo >= -limit
 
@@ -189,7 +208,7 @@ def sanitize_values(x: torch.Tensor, big: float = BIG) -> torch.Tensor:
     The finiteness test sums the tensor (cheap) instead of isfinite().all() (slow on CPU):
     a finite sum proves every element finite; otherwise we sanitise (conservatively).
     """
-    if x.numel() == 0 or math.isfinite(float(x.sum())):
+    if x.numel() == 0 or (reads_back(x) and math.isfinite(float(x.sum()))):
         return x
     return torch.nan_to_num(x, nan=0.0, posinf=big, neginf=-big)
 
@@ -198,9 +217,10 @@ def sanitize_mv(mv: torch.Tensor) -> torch.Tensor:
     """Motion vectors with NaN -> 0 and components clamped to +-MV_MAX (no copy if clean)."""
     if mv.numel() == 0:
         return mv
-    hi, lo = float(mv.amax()), float(mv.amin())  # amax/amin propagate NaN
-    if hi <= MV_MAX and lo >= -MV_MAX:
-        return mv
+    if reads_back(mv):
+        hi, lo = float(mv.amax()), float(mv.amin())  # amax/amin propagate NaN
+        if hi <= MV_MAX and lo >= -MV_MAX:
+            return mv
     return torch.nan_to_num(mv, nan=0.0, posinf=MV_MAX, neginf=-MV_MAX).clamp_(-MV_MAX, MV_MAX)
 
 
@@ -208,7 +228,8 @@ def sanitize_depth(depth: torch.Tensor) -> torch.Tensor:
     """Depth with NaN -> +inf and negatives (incl. -0.0, -inf) -> +0 (no copy if clean)."""
     if depth.numel() == 0:
         return depth
-    if float(depth.amin()) > 0.0:  # False for NaN (amin propagates NaN) and for any <= 0
+    # False for NaN (amin propagates NaN) and for any <= 0
+    if reads_back(depth) and float(depth.amin()) > 0.0:
         return depth
     d = torch.nan_to_num(depth, nan=float("inf"), posinf=float("inf"), neginf=0.0)
     return d.clamp_(min=0.0).abs_()  # abs_ turns -0.0 into +0.0

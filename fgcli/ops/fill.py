@@ -4,8 +4,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import (ALPHA_MAX, INF_BITS, check_alpha, check_choice, check_same,
-                             check_tensor, sanitize_depth, sanitize_mv)
+from fgcli.ops._util import (ALPHA_MAX, INF_BITS, aux, check_alpha, check_choice,
+                             check_same, check_tensor, reads_back, sanitize_depth,
+                             sanitize_mv)
 from fgcli.ops.splat import SplatResult
 
 # 3x3 neighbours in row-major order, centre excluded: indices 0..7 = shader 0,1,2,3,5,6,7,8
@@ -31,7 +32,75 @@ def _minpool3(d):
     return torch.minimum(out, rp[2:h + 2], out=out)
 
 
+def _shifted(x: torch.Tensor, pad_value) -> torch.Tensor:
+    """(C, H, W) -> (8, C, H, W): the 8 neighbours of every pixel in _NEIGH order, pixels
+    outside the image reading pad_value."""
+    c, h, w = x.shape
+    p = torch.full((c, h + 2, w + 2), pad_value, dtype=x.dtype, device=x.device)
+    p[:, 1:h + 1, 1:w + 1] = x
+    return torch.stack([p[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGH])
+
+
+def _gap_fill_dense(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
+    """_gap_fill_frame for every pixel at once, with no value read back to the host (the
+    CUDA path; see reads_back). Same rule and arithmetic; pixels the rule leaves alone keep
+    their values through exact selects."""
+    h, w = res.depth.shape[-2:]
+    n = h * w
+    dev = res.depth.device
+    inf = float("inf")
+    valid = res.valid[0]
+    hole = ~valid
+    d = sanitize_depth(res.depth)[0].masked_fill(hole, inf)
+    susp = (_minpool3(d) < d * (1.0 - thr)).logical_or_(hole)
+    dn = _shifted(d.contiguous().view(torch.int32)[None], INF_BITS)[:, 0]  # (8, H, W)
+    vn = _shifted(valid[None], False)[:, 0]
+    limit = d * (1.0 - thr)
+    cand = vn & ((dn.view(torch.float32) < limit[None]) | hole[None])
+    nc = ~cand
+    keep = torch.zeros_like(hole)
+    for i, j, k in _BLOCKS:
+        keep |= nc[i] & nc[j] & nc[k]
+    sel = susp & ~keep
+    key = dn.masked_fill(nc, 0x7FFFFFFF)
+    k = key.argmin(dim=0)  # nearest candidate; ties -> first in row-major order
+    # neighbour k of _NEIGH sits at j = k + (k >= 4) of the 3x3 window (no host list: a
+    # tensor made from one would be a blocking copy to the GPU)
+    j = k.view(-1) + (k.view(-1) >= 4).to(k.dtype)
+    off = torch.div(j, 3, rounding_mode="floor").sub_(1).mul_(w).add_(j.remainder(3).sub_(1))
+    srcpix = (aux(h, w, dev)["ar64"] + off).clamp_(0, n - 1)
+    t1, t0 = res.to1.reshape(2, -1), res.to0.reshape(2, -1)
+    selv = sel.view(1, h, w)
+    if fill == "nearest":
+        n1 = t1[:, srcpix].view(2, h, w)
+        n0 = t0[:, srcpix].view(2, h, w)
+    else:  # mean of the candidates' vectors
+        wgt = cand.to(torch.float32)[:, None]  # (8, 1, H, W)
+        cnt = wgt.sum(0)
+        n1 = (_shifted(res.to1, 0.0) * wgt).sum(0) / cnt
+        n0 = (_shifted(res.to0, 0.0) * wgt).sum(0) / cnt
+    to1 = torch.where(selv, n1, res.to1)
+    to0 = torch.where(selv, n0, res.to0)
+    depth = torch.where(selv, d.view(-1)[srcpix].view(1, h, w), d[None])
+    source = torch.where(selv, res.source.reshape(-1)[srcpix].view(1, h, w), res.source)
+    filled = selv
+    new_valid = valid[None] | filled
+    holes = ~new_valid
+    if fallback_mv is not None:
+        m = sanitize_mv(fallback_mv)
+        a = res.alpha
+        c1, c0 = (-(1.0 - a), a) if res.mode == "interp" else (a, 1.0 + a)
+        to1 = torch.where(holes, m * c1, to1)
+        to0 = torch.where(holes, m * c0, to0)
+        if fallback_depth is not None:
+            depth = torch.where(holes, sanitize_depth(fallback_depth), depth)
+    return res.replace(to1=to1, to0=to0, depth=depth, valid=new_valid, source=source,
+                       filled=filled, holes=holes)
+
+
 def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
+    if not reads_back(res.depth):
+        return _gap_fill_dense(res, thr, fill, fallback_mv, fallback_depth)
     h, w = res.depth.shape[-2:]
     n = h * w
     dev = res.depth.device
@@ -172,7 +241,37 @@ def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str =
     return _gap_fill_frame(result, thr, fill, fallback_mv, fallback_depth)
 
 
+def _pixel_xy(h: int, w: int, device):
+    """(x, y) float32 index coordinates of every pixel, (H, W) each."""
+    x = torch.arange(w, device=device, dtype=torch.float32)[None].expand(h, w)
+    y = torch.arange(h, device=device, dtype=torch.float32)[:, None].expand(h, w)
+    return x, y
+
+
+def _extrap_fill_dense(mv1, depth1, to1, valid, depth_target, alpha, thr):
+    """_extrap_fill_frame for every pixel at once, no read-back (the CUDA path)."""
+    h, w = depth1.shape[-2:]
+    hole = ~valid.reshape(1, h, w)
+    d1 = sanitize_depth(depth1).reshape(-1)
+    m = sanitize_mv(mv1).reshape(2, h, w) * alpha
+    x, y = _pixel_xy(h, w, depth1.device)
+    sx = x + m[0]
+    sy = y + m[1]
+    inside = (sx >= -0.5) & (sx < w - 0.5) & (sy >= -0.5) & (sy < h - 0.5)
+    ix = torch.floor(sx + 0.5).clamp_(0, w - 1).to(torch.int64)
+    iy = torch.floor(sy + 0.5).clamp_(0, h - 1).to(torch.int64)
+    ds = d1[iy * w + ix]
+    do = d1.view(h, w)
+    bg = inside & ~(ds < do * (1.0 - thr))
+    new1 = torch.where(bg[None], m, torch.zeros_like(m))
+    to1 = torch.where(hole, new1, to1)
+    depth = torch.where(hole, torch.where(bg, ds, do)[None], sanitize_depth(depth_target))
+    return to1, depth, hole.clone()
+
+
 def _extrap_fill_frame(mv1, depth1, to1, valid, depth_target, alpha, thr):
+    if not reads_back(depth1):
+        return _extrap_fill_dense(mv1, depth1, to1, valid, depth_target, alpha, thr)
     h, w = depth1.shape[-2:]
     to1 = to1.clone()
     depth = sanitize_depth(depth_target).clone()
@@ -259,6 +358,13 @@ def fill_extrap_holes(result: SplatResult, mv1: torch.Tensor, depth1: torch.Tens
         [(to0[i], to1[i], mv1[i], filled[i]) for i in range(to1.shape[0])]
     for t0, t1, m, f in frames:  # to0 = to1 + mv1(q + to1) at the filled holes only
         h, w = t1.shape[-2:]
+        if not reads_back(t1):  # every pixel, then an exact select (no read-back)
+            x, y = _pixel_xy(h, w, t1.device)
+            ix = (x + t1[0] + 0.5).floor_().clamp_(0, w - 1).long()
+            iy = (y + t1[1] + 0.5).floor_().clamp_(0, h - 1).long()
+            v = t1 + m.reshape(2, -1)[:, (iy * w + ix).view(-1)].view(2, h, w)
+            t0.copy_(torch.where(f.view(1, h, w), v, t0))
+            continue
         hidx = f.view(-1).nonzero().squeeze(1)
         if hidx.numel() == 0:
             continue

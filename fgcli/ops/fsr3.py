@@ -24,8 +24,8 @@ import math
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import (check_alpha, check_same, check_tensor, sanitize_depth,
-                             sanitize_mv, sanitize_values)
+from fgcli.ops._util import (check_alpha, check_same, check_tensor, reads_back,
+                             sanitize_depth, sanitize_mv, sanitize_values)
 from fgcli.ops.color import luminance, srgb_oetf
 from fgcli.ops.pyramid import pyramid_inpaint
 from fgcli.ops.warp import backward_warp
@@ -162,7 +162,8 @@ def pack_entries(primary: bool, hi: torch.Tensor, lo: torch.Tensor, comp: torch.
 
 def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
                  hi: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
-                 max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD) -> torch.Tensor:
+                 max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD,
+                 length_bound: float | None = None) -> torch.Tensor:
     """FSR 3 vector field of the interpolated frame (GameMotionVectorField pass; with
     optical-flow vectors and magnitude priority, the OpticalFlowVectorField pass).
 
@@ -178,6 +179,9 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
         color0, color1: (3, H, W). vec: (2, H, W) px (frame 1 -> frame 0).
         hi: (1, H, W) int64 in [1, 1023] (depth_priority of the dilated depth, or
             magnitude_priority). alpha in [0, 1].
+        length_bound: an upper bound of |vec| in px known on the host (the GPU path walks
+            that many secondary steps instead of reading the longest vector back; None:
+            max_secondary steps there). Never changes the result.
 
     Returns:
         (2, H, W) int64 packed entries (x, y); 0 = not written.
@@ -205,17 +209,24 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
             buf[c].scatter_reduce_(0, idx, keys[c] * m, reduce="amax")
     if secondary and max_secondary > 0:
         dist = _length(vf * (1.0 - a))
-        steps = int(min(max_secondary, math.floor(float(dist.max())) if dist.numel() else 0))
-        if steps >= 1:
+        dense = not reads_back(dist)
+        if dense:  # GPU: no read-back; steps past the longest vector change nothing
+            steps = max_secondary
+            if length_bound is not None and math.isfinite(length_bound):
+                steps = int(min(steps, math.floor(length_bound * (1.0 - a)) + 1))
+        else:
+            steps = int(min(max_secondary, math.floor(float(dist.max())) if dist.numel() else 0))
+        if steps >= 1 and dist.numel():
             prim = buf[0] >= (1 << 31)  # primary texels (flag = bit 31)
-            src = (dist >= 1.0).nonzero().view(-1)
+            src = (torch.arange(dist.numel(), device=dev) if dense
+                   else (dist >= 1.0).nonzero().view(-1))
             d = vf[:, src] / dist[src].clamp(min=1e-6)
             hits = torch.zeros(src.numel(), dtype=torch.int64, device=dev)
             kx = [pack_entries(False, hi[src], lo[src], vf[c, src]) for c in (0, 1)]
             sec = torch.zeros_like(buf)
             for k in range(1, steps + 1):
                 act = (dist[src] >= k) & (hits <= 3)
-                if not bool(act.any()):
+                if not dense and not bool(act.any()):
                     break
                 q = pos[:, src] - d * k
                 xi = torch.floor(q[0]).clamp(-1, w).add_(1).to(torch.int64)

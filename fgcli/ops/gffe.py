@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from fgcli.ops._util import (MV_MAX, aux, check_alpha, check_choice, check_tensor,
-                             gather_pixels, sanitize_values)
+                             gather_pixels, reads_back, sanitize_values)
 from fgcli.ops.splat import I64_MAX, _pack_key, splat_motion
 from fgcli.ops.warp import backward_warp
 
@@ -279,7 +279,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
             mv = torch.nan_to_num(mv1, nan=0.0).clamp(-OFF, OFF)
             xp, yp = a["xh"] + mv[0], a["yh"] + mv[1]
             moving = (mv[0] ** 2 + mv[1] ** 2 > threshold * threshold) & (p[3] > 0)
-            if bool(moving.any()):
+            if not reads_back(moving) or bool(moving.any()):
                 p1 = unproject(depth1, cam1, xp, yp, (h, w))
                 m = (moving & (p1[3] == p[3]))[None]
                 for i in range(1, k):

@@ -23,7 +23,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import check_choice, check_same, check_tensor, sanitize_values
+from fgcli.ops._util import (check_choice, check_same, check_tensor, reads_back,
+                             sanitize_values)
 
 PYRAMID_MODES = ("first", "blend")
 
@@ -99,7 +100,9 @@ def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
         check_same(values, "values", (holes, "holes"))
     out = sanitize_values(values).clone()
     filled = torch.zeros(1, h, w, dtype=torch.bool, device=values.device)
-    idx = holes.view(-1).nonzero().view(-1)
+    dense = not reads_back(holes)  # GPU: every pixel, every level, then a select
+    idx = (torch.arange(h * w, device=values.device) if dense
+           else holes.view(-1).nonzero().view(-1))
     if idx.numel() == 0:
         return out, filled
     w_ = wclean.masked_fill(holes, 0.0)
@@ -120,13 +123,17 @@ def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
         res = torch.where(ok[None], acc[:c] / acc[c:].clamp(min=eps), res)
         done = ok
     for i in range(1, len(lev)):
-        if bool(done.all()):
+        if not dense and bool(done.all()):
             break
         s = _sample_level(lev[i], i, xs, ys)
         ok = (s[c] > eps) & ~done
         res = torch.where(ok[None], s[:c] / s[c:].clamp(min=eps), res)
         done = done | ok
     res = sanitize_values(res)
+    if dense:
+        hv = holes.view(1, h, w)
+        return (torch.where(hv, res.view(c, h, w), out),
+                hv & done.view(1, h, w))
     flat = out.view(c, -1)
     flat[:, idx] = res
     filled.view(-1)[idx] = done

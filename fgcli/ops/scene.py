@@ -36,11 +36,20 @@ def _histograms(color: torch.Tensor, bins: int, regions: int) -> torch.Tensor:
 
 def scene_change_score(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32,
                        regions: int = 3, stride: int | None = None) -> float:
+    """Mean symmetric KL divergence between regional luminance histograms (a float; see
+    scene_change_score_tensor)."""
+    return float(scene_change_score_tensor(c0, c1, bins, regions, stride))
+
+
+def scene_change_score_tensor(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32,
+                              regions: int = 3, stride: int | None = None) -> torch.Tensor:
     """Mean symmetric KL divergence between regional luminance histograms.
 
     c0, c1: (3, H, W) linear colour. stride subsamples pixels (default: keep about 4000
     samples per region, so 1080p costs little and small frames keep every pixel). Returns a
-    float >= 0: ~0 for consecutive frames of one shot, large across a cut.
+    0-dim tensor on the frames' device, >= 0: ~0 for consecutive frames of one shot, large
+    across a cut (a tensor, so a caller on the GPU can read it back with other values in
+    one transfer).
     """
     c0 = check_tensor(c0, "c0", 3, allow_batch=False)
     c1 = check_tensor(c1, "c1", 3, allow_batch=False)
@@ -55,7 +64,7 @@ def scene_change_score(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32,
     p, q = h0 + eps, h1 + eps
     p, q = p / p.sum(1, keepdim=True), q / q.sum(1, keepdim=True)
     kl = ((p - q) * (p.log() - q.log())).sum(dim=1)  # KL(p||q) + KL(q||p)
-    return float(kl.mean())
+    return kl.mean()
 
 
 def is_scene_change(c0: torch.Tensor, c1: torch.Tensor, threshold: float = CUT_THRESHOLD,
@@ -178,10 +187,12 @@ def _flow_match(c0: torch.Tensor, c1: torch.Tensor, size: int) -> float | None:
 
 
 def confirm_cut(c0: torch.Tensor, c1: torch.Tensor, mv1: torch.Tensor | None = None,
-                threshold: float = CUT_THRESHOLD) -> dict:
+                threshold: float = CUT_THRESHOLD, score: float | None = None) -> dict:
     """The whole rule: {"score": histogram score, "candidate": score > threshold, "cut":
-    a candidate that no motion explains, "explain": motion_explains(...) for candidates}."""
-    score = scene_change_score(c0, c1)
+    a candidate that no motion explains, "explain": motion_explains(...) for candidates}.
+    score: scene_change_score(c0, c1) when the caller already has it."""
+    if score is None:
+        score = scene_change_score(c0, c1)
     out = {"score": score, "candidate": score > threshold, "cut": False, "explain": None}
     if out["candidate"]:
         out["explain"] = motion_explains(c0, c1, mv1)

@@ -13,8 +13,8 @@ import torch.nn.functional as F
 
 from fgcli.ops._util import (ALPHA_MAX, EXACT_F32, aux, check_alpha, check_choice,
                              check_same, check_tensor, gather_pixels, grid, inside_mask,
-                             nearest_index, per_frame, sanitize_flow_positions, sanitize_mv,
-                             sanitize_values)
+                             nearest_index, per_frame, reads_back, sanitize_flow_positions,
+                             sanitize_mv, sanitize_values)
 
 WARP_MODES = ("bilinear", "catmull-rom", "nearest")
 BORDERS = ("clamp", "zeros")
@@ -100,7 +100,8 @@ def _warp_frame(img, flow, mode, border):
         out = _nearest(img, f, valid, border)
     elif mode == "bilinear":
         zero = (f[0] == 0).logical_and_(f[1] == 0)
-        out = _bilinear(img, f, border, zero if bool(zero.any()) else None)
+        out = _bilinear(img, f, border, zero if not reads_back(zero) or bool(zero.any())
+                        else None)
     else:
         out = _catmull_rom(img, f, border)
     return out, valid[None]
@@ -154,7 +155,7 @@ def sample_nearest(img: torch.Tensor, flow: torch.Tensor) -> tuple[torch.Tensor,
         c, h, w = i.shape
         valid = inside_mask(f, h, w)
         out = gather_pixels(i, nearest_index(sanitize_flow_positions(f), h, w)).view(c, h, w)
-        if bool(torch.isnan(out.sum())):
+        if not reads_back(out) or bool(torch.isnan(out.sum())):
             inf = float("inf")
             out = torch.nan_to_num(out, nan=inf, posinf=inf, neginf=-inf)
         return out, valid[None]

@@ -73,8 +73,11 @@ class FSR3GameField(Stage):
         from fgcli.ops.fsr3 import depth_priority, vector_field
 
         hi = depth_priority(ctx["depth1_d"])
+        # the per-frame facts' largest vector component (GPU path) bounds the walk
+        m = (ctx.get("facts") or {}).get("mv1_absmax")
         return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"], hi,
-                                           ctx["alpha"], self.secondary, self.max_secondary)}
+                                           ctx["alpha"], self.secondary, self.max_secondary,
+                                           length_bound=None if m is None else m * 2 ** 0.5)}
 
 
 @register
@@ -88,8 +91,10 @@ class FSR3FieldFill(Stage):
     def run(self, ctx):
         from fgcli.ops.fsr3 import fill_vector_field, unpack_vector_field
 
+        from fgcli.ops._util import reads_back
+
         vec, prio, valid = unpack_vector_field(ctx["game_field"])
-        if bool(valid.all()):
+        if reads_back(valid) and bool(valid.all()):  # (the GPU fills: no holes, no change)
             return {"game_mv": vec, "game_holes": ~valid}
         out, _ = fill_vector_field(vec, prio, valid)
         return {"game_mv": out, "game_holes": ~valid}
@@ -119,6 +124,7 @@ class FSR3OpticalFlow(Stage):
     )
 
     def run(self, ctx):
+        from fgcli.ops._util import reads_back
         from fgcli.ops.fsr3 import (block_flow, dis_flow, fill_vector_field, luma8,
                                     magnitude_priority, unpack_vector_field,
                                     upsample_block_flow, vector_field)
@@ -135,7 +141,7 @@ class FSR3OpticalFlow(Stage):
             f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
         field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
         vec, prio, valid = unpack_vector_field(field)
-        if not bool(valid.all()):
+        if not reads_back(valid) or not bool(valid.all()):
             vec, _ = fill_vector_field(vec, prio, valid)
         return {"of_mv": vec}
 
@@ -196,6 +202,7 @@ class FSR3Interpolate(Stage):
         import torch
 
         from fgcli.ops import sample_nearest, sanitize_depth, sanitize_mv
+        from fgcli.ops._util import reads_back
         from fgcli.ops.fsr3 import interpolate_fsr3
 
         a = ctx["alpha"]
@@ -204,7 +211,8 @@ class FSR3Interpolate(Stage):
                                               ctx["mask_prev"], ctx["mask_cur"], a,
                                               ctx.get("of_mv"), self.space)
         depth = sanitize_depth(ctx["depth_t"])
-        if ctx.get("depth0") is not None and bool(torch.isinf(depth).any()):
+        if ctx.get("depth0") is not None and (not reads_back(depth)
+                                              or bool(torch.isinf(depth).any())):
             # nothing splatted there (and sky): the nearer of the two sampled depths
             d0, _ = sample_nearest(sanitize_depth(ctx["depth0"]), v * a)
             d1, _ = sample_nearest(sanitize_depth(ctx["depth1"]), v * -(1.0 - a))
@@ -228,7 +236,9 @@ class FSR3Inpaint(Stage):
                       range=(1.0, 64.0)),)
 
     def needed(self, ctx, facts):
-        if not bool(ctx["fsr3_holes"].any()):
+        from fgcli.ops._util import reads_back
+
+        if reads_back(ctx["fsr3_holes"]) and not bool(ctx["fsr3_holes"].any()):
             return False, "no holes"
         return True, ""
 

@@ -159,9 +159,11 @@ class GffeWindow(Stage):
 
         d = self.plane_depth
         if d <= 0:
+            # the median of the finite positive depths (NaN when there are none): the one
+            # value gffe reads back per frame on a GPU (the window is host metadata)
             dep = ctx["depth1"]
-            fin = dep[torch.isfinite(dep) & (dep > 0)]
-            d = float(fin.median()) if fin.numel() else 10.0
+            ok = torch.isfinite(dep) & (dep > 0)
+            d = float(torch.where(ok, dep, float("nan")).nanmedian())
             if not (d > 0 and math.isfinite(d)):
                 d = 10.0
         try:
@@ -185,7 +187,11 @@ class GffePosition(Stage):
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
             return False, "every pixel static: positions are the unprojected depth"
+        from fgcli.ops._util import reads_back
+
         t = ctx["traj"]
+        if not reads_back(t):  # GPU: computed (same values) rather than read back
+            return True, ""
         if not bool(ctx["dynamic"].any()) and torch_equal(t[0], t[1]):
             return False, "no dynamic pixels: positions are the unprojected depth"
         return True, ""
@@ -291,9 +297,11 @@ class GffeBackgroundProject(Stage):
     options = ()
 
     def needed(self, ctx, facts):
+        from fgcli.ops._util import reads_back
+
         if ctx.get("bg") is None:
             return False, "no background collected"
-        if bool(ctx["valid"].all()):
+        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
             return False, "no holes in the warped frame"
         return True, ""
 
@@ -337,7 +345,9 @@ class GffeHoleFill(Stage):
     )
 
     def needed(self, ctx, facts):
-        if bool(ctx["valid"].all()):
+        from fgcli.ops._util import reads_back
+
+        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
             return False, "no holes left"
         return True, ""
 
@@ -358,4 +368,5 @@ class GffeHoleFill(Stage):
                                            ctx["camera1"], ctx["camera_x"],
                                            offscreen=self.offscreen)
             mv = torch.where(took, flow, mv)
-        return {"color": c, "depth": d, "mv": mv, "holes": int((~v).sum())}
+        # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
+        return {"color": c, "depth": d, "mv": mv, "holes": (~v).sum()}

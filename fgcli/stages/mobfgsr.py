@@ -9,7 +9,12 @@ class _HoleStage(Stage):
     """A stage that refines ctx["motion"] where it has holes: not needed without holes."""
 
     def needed(self, ctx, facts):
-        if not bool((~ctx["motion"].valid).any().item()):
+        from fgcli.ops._util import reads_back
+
+        valid = ctx["motion"].valid
+        if not reads_back(valid):  # GPU: runs (dense, cheap) rather than read a value back
+            return True, ""
+        if not bool((~valid).any().item()):
             return False, "no holes left in the splatted motion"
         return True, ""
 
@@ -160,7 +165,10 @@ class Warp(Stage):
 
     def needed(self, ctx, facts):
         m = ctx["motion"]
-        if not facts["any_motion"] and not bool(m.to1.any()) and not bool(m.to0.any()):
+        from fgcli.ops._util import reads_back
+
+        if (not facts["any_motion"] and reads_back(m.to1) and not bool(m.to1.any())
+                and not bool(m.to0.any())):
             return False, "zero motion: samples are the rendered frames"
         return True, ""
 
