@@ -262,7 +262,9 @@ class IOThreads:
     every one slows the others (measured per frame at 1080p on 2 cores: compute 965 ms
     instead of 380, read 970, write 1110). While the I/O threads run:
     - limit_io(): OpenImageIO uses `FGEN_OIIO_THREADS` threads per file (default 1: the
-      reader and the writer already run beside each other and the compute);
+      reader and the writer already run beside each other and the compute; with
+      --device cuda the compute leaves the cores free, and OpenImageIO keeps its default
+      of one thread per core);
     - limit_compute(): the compute uses at most `FGEN_COMPUTE_THREADS` threads (default:
       the cores less one, at least 1), never more than it was set to (an executor's
       per-worker setting stays).
@@ -280,9 +282,11 @@ class IOThreads:
             raise UsageError(f"{name} must be a number of threads, not "
                              f"'{os.environ.get(name)}'") from None
 
-    def limit_io(self) -> None:
+    def limit_io(self, device: str = "cpu") -> None:
         import OpenImageIO as oiio
 
+        if device.startswith("cuda") and "FGEN_OIIO_THREADS" not in os.environ:
+            return  # the compute runs on the GPU: the decoder keeps one thread per core
         n = self._env("FGEN_OIIO_THREADS", 1)
         for k in ("threads", "exr_threads"):
             self.saved.setdefault(("oiio", k), oiio.get_int_attribute(k, 0))
@@ -458,7 +462,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     # decode the first frames while torch loads and the stages are built (1-3 s of start-up
     # that the reader thread would otherwise sit out)
     threads = IOThreads()
-    threads.limit_io()
+    threads.limit_io(device)
     cache = FrameCache(reader, timings, device, keep=read_ahead(reader))
     try:
         for n in first_reads(plan, out, cache.keep):

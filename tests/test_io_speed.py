@@ -239,6 +239,17 @@ def test_io_threads_restored(monkeypatch):
     monkeypatch.setenv("FGEN_OIIO_THREADS", "many")
     with pytest.raises(UsageError, match="FGEN_OIIO_THREADS"):
         IOThreads().limit_io()
+    # on a GPU the cores are free for the decoder: OpenImageIO keeps its own setting
+    # unless FGEN_OIIO_THREADS asks otherwise
+    monkeypatch.delenv("FGEN_OIIO_THREADS")
+    t = IOThreads()
+    t.limit_io("cuda")
+    assert oiio.get_int_attribute("threads") == before[0]
+    monkeypatch.setenv("FGEN_OIIO_THREADS", "1")
+    t.limit_io("cuda")
+    assert oiio.get_int_attribute("threads") == 1
+    t.restore()
+    assert oiio.get_int_attribute("threads") == before[0]
 
 
 def test_interpolate_outputs_unchanged_by_thread_settings(tmp_path, tiny_scene, monkeypatch):
