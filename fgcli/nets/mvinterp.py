@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from fgcli.nets.blocks import ResBlock, conv, resize_flow, warp
+from fgcli.nets.blocks import ResBlock, conv, conv_transpose_as_conv, resize_flow, warp
 from fgcli.ops.mvinterp import tonemap, untonemap
 
 DEFAULT_WIDTHS = (16, 24, 32, 48)
@@ -61,7 +61,10 @@ class Decoder(nn.Module):
         self.up = nn.ConvTranspose2d(c, cout, 4, 2, 1)
 
     def forward(self, x):
-        return self.up(self.body(x))
+        x = self.body(x)
+        if torch.onnx.is_in_onnx_export():  # the faster ONNX form of the same layer
+            return conv_transpose_as_conv(self.up, x)
+        return self.up(x)
 
 
 def _zero(m: nn.Module) -> nn.Module:
