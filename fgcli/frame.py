@@ -64,6 +64,11 @@ class Frame:
     # (x, y, w, h) of the pixels that carry data, within the (display-sized) tensors; None =
     # all of them. Outside it: no data (alpha 0, depth +inf, vectors invalid).
     data_window: tuple | None = None
+    # an overscan render's pixels beyond the display window: {"origin": (x, y) of the
+    # rendered region relative to the display window (negative: a border), "color": (3, He,
+    # We), "depth": (1, He, We)}; None = the frame has no such border. Only stages that
+    # can use it read it (gffe-extrap's hole fill); outputs never carry it.
+    overscan: dict | None = None
 
     @property
     def height(self) -> int:
@@ -86,4 +91,7 @@ class Frame:
             v = getattr(self, name)
             if v is not None:
                 kw[name] = v.to(device)
+        if self.overscan is not None:
+            kw["overscan"] = {k: (v.to(device) if k != "origin" else v)
+                              for k, v in self.overscan.items()}
         return replace(self, **kw)

@@ -111,6 +111,7 @@ def make_ctx(f0: Frame | None, f1: Frame, alpha: float, mode: str) -> dict:
             "mv0": f0.mv if f0 is not None and _usable_mv(f0) else None,
             "camera0": None if f0 is None else f0.camera,
             "color1": f1.color, "depth1": f1.depth, "mv1": f1.mv, "camera1": f1.camera,
+            "overscan1": getattr(f1, "overscan", None),
             "alpha": float(alpha), "mode": mode, "width": f1.width, "height": f1.height,
             "number0": None if f0 is None else getattr(f0, "number", None),
             "number1": getattr(f1, "number", None)}

@@ -92,7 +92,9 @@ def describe(reader, do_scan: bool = False, layout_option=None) -> dict:
         "notes": reader.notes,
         "no_backward_vectors": reader.frames_without_backward(),
         "tiled": any(p.tiled for p in h.parts),
-        "data_window_smaller": any(not p.full_data_window for p in h.parts),
+        "data_window_smaller": any(not p.full_data_window and not p.overscan
+                                   for p in h.parts),
+        "overscan": [(p.x, p.y, p.data_width, p.data_height) for p in h.parts if p.overscan],
     }
     if do_scan:
         d["nonfinite"] = scan(reader)
@@ -126,6 +128,10 @@ def _text(d: dict) -> str:
         extra.append("tiled")
     if d["data_window_smaller"]:
         extra.append("data window smaller than display window (padded)")
+    if d["overscan"]:
+        x, y, w, h = d["overscan"][0]
+        extra.append(f"overscan: data window {w}x{h} at ({x}, {y}) beyond the display "
+                     f"window (the border is kept for gffe-extrap's hole fill)")
     if extra:
         lines.append(f"file:        {', '.join(extra)}")
     lines.append("channels:")

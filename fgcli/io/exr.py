@@ -54,6 +54,12 @@ class Part:
     attr_types: dict = field(default_factory=dict)  # attribute name -> OIIO type name
 
     @property
+    def overscan(self) -> bool:
+        """True when the data window reaches outside the display window."""
+        return (self.x < 0 or self.y < 0 or self.x + self.data_width > self.width
+                or self.y + self.data_height > self.height)
+
+    @property
     def full_data_window(self) -> bool:
         """True when the data window is exactly the display window."""
         return (self.x, self.y, self.data_width, self.data_height) == (
@@ -404,7 +410,8 @@ def _spans(idxs: list[int], formats: list[str]) -> list[tuple[int, int, str]]:
 
 
 def read_channels(path: str, wanted: list[tuple[int, str]], header: Header | None = None,
-                  fill: dict | None = None) -> dict[tuple[int, str], np.ndarray]:
+                  fill: dict | None = None,
+                  borders: dict | None = None) -> dict[tuple[int, str], np.ndarray]:
     """Read the named channels ((part, name) pairs) as float32 (H, W) arrays on the display
     window. Only the parts and the channel spans needed are decoded.
 
@@ -412,6 +419,10 @@ def read_channels(path: str, wanted: list[tuple[int, str]], header: Header | Non
     (C, H, W) float32 block, in channel order (layouts.planes() takes a field's channels
     from it without copying them again).
     fill: (part, name) -> value for display-window pixels outside the data window (default 0).
+    borders: when given, a part whose data window reaches outside the display window (an
+    overscan render) also leaves its uncropped planes there: (part, name) -> (plane
+    (data_height, data_width), x, y), x and y the data window's origin relative to the
+    display window's (negative for a border).
     InputError (naming the file, and the channel where one is at fault) for anything that
     does not decode completely: OpenImageIO's result is checked against the header.
     """
@@ -489,6 +500,8 @@ def read_channels(path: str, wanted: list[tuple[int, str]], header: Header | Non
                 del data
             for n, i in zip(names, idxs):
                 plane = decoded[i]
+                if borders is not None and p.overscan:
+                    borders[(part_idx, n)] = (plane, p.x, p.y)
                 if not p.full_data_window:
                     full = np.full((p.height, p.width), fill.get((part_idx, n), 0.0),
                                    np.float32)

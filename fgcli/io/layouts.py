@@ -179,6 +179,7 @@ class RawFrame:
     attribute_types: dict
     path: str
     helpers: set = field(default_factory=set)  # fields read only for internal use
+    overscan: dict | None = None  # Frame.overscan, as numpy arrays
 
     def to_frame(self) -> Frame:
         torch = _torch()
@@ -186,6 +187,11 @@ class RawFrame:
               for k, v in self.arrays.items() if k not in self.helpers}
         if "mv" in kw and "mv" in self.valid:
             kw["mv_valid"] = torch.from_numpy(np.ascontiguousarray(self.valid["mv"]))
+        if self.overscan is not None:
+            kw["overscan"] = {"origin": self.overscan["origin"],
+                              **{k: torch.from_numpy(np.ascontiguousarray(
+                                  self.overscan[k], dtype=np.float32))
+                                 for k in ("color", "depth")}}
         return Frame(number=self.number, camera=self.camera, header=dict(self.attributes),
                      source=self.path, header_types=dict(self.attribute_types), **kw)
 
@@ -283,7 +289,12 @@ class MappedLayout:
         want, helpers = self._want(info, fields, optional, header, number)
         extra = ["mv_valid"] if "mv" in want and "mv_valid" in info.names else []
         refs = [r for f in want + extra for r in info.refs(f)]
-        arrays = exr.read_channels(header.path, refs, header)
+        borders = None
+        if any(p.overscan for p in header.parts):  # keep the rendered border too
+            borders = {}
+            arrays = exr.read_channels(header.path, refs, header, borders=borders)
+        else:
+            arrays = exr.read_channels(header.path, refs, header)
         w, h = header.width, header.height
         cpart = header.parts[info.part_of("color")]
         cam, _ = cameras.from_header_attributes(cpart.attributes)
@@ -326,8 +337,29 @@ class MappedLayout:
             for k in valid:
                 valid[k] = valid[k] & ~sky
         valid = {k: v for k, v in valid.items() if not v.all()}
-        return RawFrame(number, out, valid, cam, dict(cpart.attributes),
-                        dict(cpart.attr_types), header.path, set(helpers))
+        raw = RawFrame(number, out, valid, cam, dict(cpart.attributes),
+                       dict(cpart.attr_types), header.path, set(helpers))
+        if borders and "depth" in out:
+            raw.overscan = self._overscan(info, borders, cam, header.path, number)
+        return raw
+
+    def _overscan(self, info: LayoutInfo, borders: dict, cam, path, number) -> dict | None:
+        """The rendered region beyond the display window (an overscan border), colour and
+        depth: {"origin": (x, y) relative to the display window, "color": (3, He, We),
+        "depth": (1, He, We)}; None unless both fields have it with one extent (or when
+        depth is stored as distance along the ray, whose conversion is per display pixel)."""
+        refs = info.refs("color") + info.refs("depth")
+        if self.conv.depth_kind == "distance" or not all(r in borders for r in refs):
+            return None
+        if len({(b[0].shape, b[1], b[2]) for b in (borders[r] for r in refs)}) != 1:
+            return None
+        _, x, y = borders[refs[0]]
+        color = _clean(planes([borders[r][0] for r in info.refs("color")], copy=True),
+                       number, "color", None)
+        depth = planes([borders[r][0] for r in info.refs("depth")], copy=True)
+        depth = self._depth_in(depth, cam, depth.shape[-1], depth.shape[-2], path, number,
+                               None)
+        return {"origin": (int(x), int(y)), "color": color, "depth": depth}
 
     def _want(self, info: LayoutInfo, fields, optional, header, number
               ) -> tuple[list[str], set[str]]:

@@ -696,7 +696,7 @@ def push_pull_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
 
 def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
                    depth1: torch.Tensor, cam1, cam_x, depth_tol: float = 0.05,
-                   offscreen: str = "clamp"):
+                   offscreen: str = "clamp", border: dict | None = None):
     """Holes of the extrapolated frame read frame 1 through a proxy surface: the hole pixel's
     ray of cam_x at ``depth`` (the far-biased push-pull depth of its surroundings, i.e. the
     background) projected into frame 1, sampled bilinearly there, where frame 1 shows a
@@ -707,13 +707,19 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     extrapolated frame; color1, depth1 frame 1; cams. offscreen: 'clamp' reads a point that
     frame 1 does not show (out-of-screen disocclusion, no rendered border) at the nearest
     edge pixel (edge extension, as a backward warp with clamped addressing does), 'skip'
-    leaves it to the push-pull. Returns (color, mv toward frame 1, took (1, H, W) bool:
-    holes filled this way)."""
+    leaves it to the push-pull. border: frame 1's overscan (Frame.overscan: origin, color,
+    depth of the rendered region beyond the display window): points there read the
+    rendered border instead (GFFE's adaptive window, Sec. 4.3: out-of-screen disocclusions
+    filled from pixels the renderer drew); offscreen then applies at the border's edge.
+    Returns (color, mv toward frame 1, took (1, H, W) bool: holes filled this way)."""
     check_choice(offscreen, "offscreen", ("clamp", "skip"))
     H, W = color.shape[-2:]
     a = aux(H, W, color.device)
     X = unproject(depth, cam_x)
     px, py, _, ok = project(X, cam1, (H, W))
+    if border is not None:
+        return _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol,
+                                 offscreen)
     if offscreen == "clamp":
         px = torch.where(ok, px.clamp(0.5, W - 0.5), px)
         py = torch.where(ok, py.clamp(0.5, H - 0.5), py)
@@ -726,5 +732,34 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     flow = torch.stack([torch.where(took, px - a["xh"], torch.zeros_like(px)),
                         torch.where(took, py - a["yh"], torch.zeros_like(py))])
     smp, _ = backward_warp(sanitize_values(color1), flow, "bilinear")
+    out = torch.where(took[None], smp, color)
+    return out, flow, took[None]
+
+
+def _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol, offscreen):
+    """reproject_fill's sampling in frame 1's rendered region including its overscan
+    border: display coordinates (px, py) are (px - x0, py - y0) in the border arrays."""
+    import torch.nn.functional as F
+
+    ox, oy = border["origin"]
+    c_ext, d_ext = border["color"], border["depth"]
+    He, We = c_ext.shape[-2:]
+    ex, ey = px - ox, py - oy
+    if offscreen == "clamp":
+        ex = torch.where(ok, ex.clamp(0.5, We - 0.5), ex)
+        ey = torch.where(ok, ey.clamp(0.5, He - 0.5), ey)
+    idx, inside = _sample_nearest_idx(ex, ey, He, We)
+    H, W = color.shape[-2:]
+    seen = gather_pixels(torch.nan_to_num(d_ext, nan=0.0), idx).view(H, W)
+    dq = depth[0]
+    deep = (seen >= dq * (1.0 - depth_tol)) | (torch.isinf(seen) & torch.isinf(dq))
+    took = (~valid[0]) & ok & inside.view(H, W) & deep
+    # bilinear in the border arrays (pixel-centre coordinates, edge clamped)
+    g = torch.stack([ex / We * 2.0 - 1.0, ey / He * 2.0 - 1.0], -1)[None]
+    g = torch.nan_to_num(g, nan=-4.0).clamp(-4.0, 4.0)
+    smp = F.grid_sample(sanitize_values(c_ext)[None], g, mode="bilinear",
+                        padding_mode="border", align_corners=False)[0]
+    flow = torch.stack([torch.where(took, px - a["xh"], torch.zeros_like(px)),
+                        torch.where(took, py - a["yh"], torch.zeros_like(py))])
     out = torch.where(took[None], smp, color)
     return out, flow, took[None]

@@ -139,10 +139,13 @@ class GffeWindow(Stage):
     name = "gffe_window"
     help = ("GFFE adaptive rendering window (Sec. 4.3, appendix C, Eq. 5): the window a "
             "renderer should use so the extrapolated view is covered; recorded per rendered "
-            "frame in fgen-run.json (render_windows).")
+            "frame in fgen-run.json (render_windows). When the input frames were rendered "
+            "with an overscan border (an EXR data window beyond the display window), the "
+            "border is what the hole fill reads out-of-screen disocclusions from "
+            "(window=off: the display window only).")
     inputs = ("camera_x", "depth1")
-    optional_inputs = ("camera1",)
-    outputs = ("render_window",)
+    optional_inputs = ("camera1", "overscan1")
+    outputs = ("render_window", "window_border")
     options = (
         Option("plane_depth", "float", 0.0, "virtual plane distance (scene units); 0 = the "
                "median finite depth of the frame", range=(0.0, 1e9)),
@@ -170,7 +173,8 @@ class GffeWindow(Stage):
             win = render_window(ctx["camera1"], ctx["camera_x"], d, self.limit)
         except (ValueError, ArithmeticError, __import__("numpy").linalg.LinAlgError):
             win = (-1.0, -1.0, 1.0, 1.0)
-        return {"render_window": [round(x, 6) for x in win]}
+        return {"render_window": [round(x, 6) for x in win],
+                "window_border": ctx.get("overscan1")}
 
 
 @register
@@ -330,7 +334,7 @@ class GffeHoleFill(Stage):
             "then reads frame 1 along that proxy surface where frame 1 sees it. Zero MVs in "
             "push-pull pixels. The count goes to ctx['holes'] (fgen eval: hole_fill_fraction).")
     inputs = ("color", "depth", "mv", "valid")
-    optional_inputs = ("color1", "depth1", "camera1", "camera_x")
+    optional_inputs = ("color1", "depth1", "camera1", "camera_x", "window_border")
     outputs = ("color", "depth", "mv", "holes")
     options = (
         Option("far_bias", "float", 0.1, "pyramid levels average only pixels within this "
@@ -366,7 +370,8 @@ class GffeHoleFill(Stage):
                 and ctx.get("camera_x") is not None:
             c, flow, took = reproject_fill(c, v, d, ctx["color1"], ctx["depth1"],
                                            ctx["camera1"], ctx["camera_x"],
-                                           offscreen=self.offscreen)
+                                           offscreen=self.offscreen,
+                                           border=ctx.get("window_border"))
             mv = torch.where(took, flow, mv)
         # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
         return {"color": c, "depth": d, "mv": mv, "holes": (~v).sum()}
