@@ -115,6 +115,11 @@ class MVInterpNet(Stage):
                "1 = the tone map's range): a near-constant pixel is exact as a cross-fade, a "
                "changing one (a shadow edge sweeping) is the network's; 1e9 = every static "
                "pixel", range=(0.0, 1e9)),
+        Option("hole_mask_min", "float", 0.0, "guide holes (no frame-1 surface splats to "
+               "the pixel) whose frame-1 guided sample is nearer than frame 0's (2 %): "
+               "frame 1 shows an occluder there, so the merge mask M (weight of frame 0) is "
+               "raised to at least this (fgen extension; 0 = the network's M)",
+               range=(0.0, 1.0)),
     )
 
     def needed(self, ctx, facts):
@@ -162,8 +167,12 @@ class MVInterpNet(Stage):
         return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
 
     def run(self, ctx):
+        import math
+
         import torch
         import torch.nn.functional as F
+
+        from fgcli.ops.mvinterp import CUE_LOG_RANGE
 
         from fgcli.nets.mvinterp import MULTIPLE
         from fgcli.nets.runtime import run_mvinterp
@@ -181,6 +190,15 @@ class MVInterpNet(Stage):
             x = [F.pad(v, (0, pw, 0, ph), mode="replicate") for v in x]
         color, f0, f1, mask = run_mvinterp(*x, a, backend=self.backend, name=self.weights)
         color, f0, f1, mask = (v[0, :, :H, :W] for v in (color, f0, f1, mask))
+        if self.hole_mask_min > 0.0 and ctx.get("guide0") is not None:
+            # M' = max(M, m) where frame 1 shows an occluder at a splat hole; Eq. 5 is
+            # linear in M: colour + (M' - M) (W(I0, f0) - W(I1, f1))
+            from fgcli.nets.blocks import warp
+
+            occl = (cue[1:2] > 0.5) & (cue[0:1] > math.log1p(0.02) / CUE_LOG_RANGE)
+            dm = torch.where(occl, (self.hole_mask_min - mask).clamp_min(0.0),
+                             torch.zeros_like(mask))
+            color = color + dm * (warp(c0[None], f0[None])[0] - warp(c1[None], f1[None])[0])
         color = color.clamp_min(0.0)
         w = trained_weight(a)
         if w < 1.0:
