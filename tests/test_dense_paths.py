@@ -18,7 +18,7 @@ import torch
 from fgcli import ops as R
 from fgcli.ops import _util
 
-from test_kernels import CASES, IDS, SPLATS, _pipeline_outputs, same_result
+from test_kernels import CASES, IDS, _splats
 
 INF, NAN = float("inf"), float("nan")
 
@@ -75,13 +75,7 @@ def test_sanitisers_and_warps(name, f):
 
 @pytest.mark.parametrize("name,f", CASES, ids=IDS)
 def test_gap_fill_and_extrap_fill(name, f):
-    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
-    for kw in SPLATS:
-        kw = dict(kw)
-        a = kw.pop("alpha")
-        d0 = f["d0"] if kw.pop("depth0", False) else None
-        mv0 = None if kw.pop("no_mv0", False) else f["mv0"]
-        label = f"{kw} a={a}"
+    for label, dd, mm, mv0, a, kw, d0 in _splats(f):
         r = R.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
         for thr in (0.01, 0.0, 1.0):
             close(f"{label} gap_fill {thr}", *both(lambda: R.gap_fill(r, thr)))

@@ -41,17 +41,25 @@ def _shifted(x: torch.Tensor, pad_value) -> torch.Tensor:
     return torch.stack([p[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGH])
 
 
+def _gap_inputs(res: SplatResult):
+    """(h, w, valid (H, W), hole (H, W), d (H, W): the sanitised splat depth, +inf at
+    holes) of one frame's splat."""
+    h, w = res.depth.shape[-2:]
+    valid = res.valid[0]
+    hole = ~valid
+    d = sanitize_depth(res.depth)[0]
+    if not reads_back(hole) or bool(hole.any()):
+        d = d.masked_fill(hole, float("inf"))
+    return h, w, valid, hole, d
+
+
 def _gap_fill_dense(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
     """_gap_fill_frame for every pixel at once, with no value read back to the host (the
     CUDA path; see reads_back). Same rule and arithmetic; pixels the rule leaves alone keep
     their values through exact selects."""
-    h, w = res.depth.shape[-2:]
+    h, w, valid, hole, d = _gap_inputs(res)
     n = h * w
     dev = res.depth.device
-    inf = float("inf")
-    valid = res.valid[0]
-    hole = ~valid
-    d = sanitize_depth(res.depth)[0].masked_fill(hole, inf)
     susp = (_minpool3(d) < d * (1.0 - thr)).logical_or_(hole)
     dn = _shifted(d.contiguous().view(torch.int32)[None], INF_BITS)[:, 0]  # (8, H, W)
     vn = _shifted(valid[None], False)[:, 0]
@@ -101,15 +109,9 @@ def _gap_fill_dense(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
 def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
     if not reads_back(res.depth):
         return _gap_fill_dense(res, thr, fill, fallback_mv, fallback_depth)
-    h, w = res.depth.shape[-2:]
+    h, w, valid, hole, d = _gap_inputs(res)
     n = h * w
     dev = res.depth.device
-    inf = float("inf")
-    valid = res.valid[0]
-    hole = ~valid
-    d = sanitize_depth(res.depth)[0]
-    if bool(hole.any()):
-        d = d.masked_fill(hole, inf)
     to1 = res.to1.clone()
     to0 = res.to0.clone()
     depth = d.clone()[None]
