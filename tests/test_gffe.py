@@ -435,9 +435,10 @@ def test_overscan_border_is_read_beside_the_display_window(overscan_seq):
 
 def test_window_fills_out_of_screen_holes_from_the_overscan_border(overscan_seq, tmp_path):
     """gffe-extrap's window ablation: with the rendered border the out-of-screen
-    disocclusions of an orbiting camera are read from pixels the renderer drew; without it
-    (window=off) from frame 1's edge pixel. The border must score better overall and on
-    disoccluded pixels (here +0.08 / +0.20 dB; docs/results.md, 17 frames: +0.18 / +0.43;
+    disocclusions of an orbiting camera are filled from pixels the renderer drew (the
+    border's fragments splatted, then the reprojection reading it); without it (window=off)
+    from frame 1's edge pixel. The border must score better overall and on disoccluded
+    pixels (here +0.11 / +0.29 dB; docs/results.md, 17 frames: +0.34 / +1.03;
     deterministic renders, float differences between CPUs are ~1e-3 dB)."""
     import json
 

@@ -580,6 +580,43 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor):
             torch.where(filled, torch.stack([mvx, mvy]), z(torch.stack([mvx, mvy]))), filled)
 
 
+def project_border(border: dict, cam1, cam_x, holes: torch.Tensor):
+    """The overscan border of frame 1 (Frame.overscan: the rendered pixels outside the
+    display window) seen by the extrapolated camera: GFFE's use of a larger rendering
+    window (Sec. 4.3), the border's fragments splatted (static, nearest depth wins) into
+    the ``holes`` (1, H, W) of the extrapolated frame. Pixels inside the display window
+    are left out (the warp has them).
+
+    Returns (color (3, H, W), depth (1, H, W), mv (2, H, W) toward frame 1, filled (1, H,
+    W) bool), as project_background."""
+    H, W = holes.shape[-2:]
+    dev = holes.device
+    ox, oy = border["origin"]
+    c_ext, d_ext = border["color"], border["depth"]
+    He, We = d_ext.shape[-2:]
+    cx, cy = _centres(He, We, 1.0, dev)
+    cx, cy = cx + float(ox), cy + float(oy)  # pixel centres in display coordinates
+    ring = (cx < 0) | (cx >= W) | (cy < 0) | (cy >= H)
+    d = d_ext[0]
+    use = ring & torch.isfinite(d) & (d > 0)
+    X = unproject(torch.where(use, d, torch.zeros_like(d))[None], cam1, cx, cy, (H, W))
+    px, py, dn, ok = project(X, cam_x, (H, W))
+    src, dep = _splat_min(torch.floor(px), torch.floor(py), dn, ok & use, H, W)
+    s = src.view(H, W)
+    hit = s >= 0
+    color = gather_pixels(sanitize_values(c_ext), s.clamp_min(0).view(-1)).view(3, H, W)
+    a = aux(H, W, dev)
+    sc = s.clamp_min(0)
+    sx = (sc % We).float() + 0.5 + float(ox)
+    sy = torch.div(sc, We, rounding_mode="floor").float() + 0.5 + float(oy)
+    mv = torch.stack([sx - a["xh"], sy - a["yh"]])
+    filled = holes & hit[None]
+    z = torch.zeros_like
+    return (torch.where(filled, color, z(color)),
+            torch.where(filled, dep.view(1, H, W), torch.full_like(dep.view(1, H, W), math.inf)),
+            torch.where(filled, mv, z(mv)), filled)
+
+
 # ----------------------------------------------------------------------------- window
 
 def render_window(cam, cam_x, plane_depth: float, limit: float = 4.0) -> tuple[float, ...]:

@@ -346,6 +346,9 @@ class GffeHoleFill(Stage):
                "(out-of-screen disocclusion without a rendered border) reads the nearest "
                "edge pixel (clamp, fgen) or is left to the push-pull (skip)",
                choices=("clamp", "skip")),
+        Option("border_splat", "bool", True, "with an overscan border (window stage on): "
+               "splat the border's own fragments into the holes before the push-pull and "
+               "the reprojection (GFFE's larger rendering window)"),
     )
 
     def needed(self, ctx, facts):
@@ -361,17 +364,22 @@ class GffeHoleFill(Stage):
     def run(self, ctx):
         import torch
 
-        from fgcli.ops.gffe import push_pull_fill, reproject_fill
+        from fgcli.ops.gffe import project_border, push_pull_fill, reproject_fill
 
-        v = ctx["valid"]
-        c, d = push_pull_fill(ctx["color"], v, ctx["depth"], self.far_bias)
-        mv = torch.where(v, ctx["mv"], torch.zeros_like(ctx["mv"]))
-        if self.mode == "reproject" and ctx.get("camera1") is not None \
-                and ctx.get("camera_x") is not None:
+        v, color, depth, mv0 = ctx["valid"], ctx["color"], ctx["depth"], ctx["mv"]
+        border = ctx.get("window_border")
+        cams = ctx.get("camera1") is not None and ctx.get("camera_x") is not None
+        if border is not None and cams and self.border_splat:
+            # the rendered border first: its own fragments, where they land in a hole
+            bc, bd, bm, bf = project_border(border, ctx["camera1"], ctx["camera_x"], ~v)
+            color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
+            mv0, v = torch.where(bf, bm, mv0), v | bf
+        c, d = push_pull_fill(color, v, depth, self.far_bias)
+        mv = torch.where(v, mv0, torch.zeros_like(mv0))
+        if self.mode == "reproject" and cams:
             c, flow, took = reproject_fill(c, v, d, ctx["color1"], ctx["depth1"],
                                            ctx["camera1"], ctx["camera_x"],
-                                           offscreen=self.offscreen,
-                                           border=ctx.get("window_border"))
+                                           offscreen=self.offscreen, border=border)
             mv = torch.where(took, flow, mv)
         # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
         return {"color": c, "depth": d, "mv": mv, "holes": (~v).sum()}
