@@ -202,6 +202,25 @@ def test_pipelines_read_nothing_back_on_the_dense_path(name, mode, rendered):
     assert all(bool(torch.isfinite(c).all()) for c, _, _ in outs)
 
 
+def test_gffe_with_an_overscan_border_reads_nothing_back(rendered):
+    """The border paths of gffe's hole fill (border splat, border reprojection) on the
+    dense path: a border made by edge-replicating the frames 6 px (the values do not
+    matter here, the read-backs do)."""
+    import torch.nn.functional as F
+
+    def bordered(f):
+        pad = lambda t: F.pad(t[None], (6, 6, 6, 6), mode="replicate")[0]  # noqa: E731
+        return f.replace(overscan={"origin": (-6, -6), "color": pad(f.color),
+                                   "depth": pad(f.depth)})
+
+    frames = [bordered(f) for f in rendered]
+    with dense():
+        on = _run("gffe-extrap:window.plane_depth=5", "extrap", frames, 0.5, trap=True)
+    off = _run("gffe-extrap:window.plane_depth=5", "extrap", rendered, 0.5)
+    assert all(bool(torch.isfinite(c).all()) for c, _, _ in on)
+    assert len(on) == len(off)
+
+
 def test_the_trap_catches_a_read_back():
     for fn in (lambda: bool(torch.zeros(3).any()), lambda: torch.zeros(3).sum().item(),
                lambda: torch.zeros(3).nonzero(), lambda: torch.tensor([1, 2]),
