@@ -313,3 +313,23 @@ def test_shading_only_scenes_move_only_the_light():
         scene = load_scene(spec)
         f = render(scene, 1.0, 0.0, spp=1)
         assert float(f.mv.abs().max()) < 1e-3  # static geometry: (numerically) zero vectors
+
+
+def test_hole_weight_reweights_the_charbonnier_term(tiny_data):
+    """--hole-weight: without guide holes in the batch the loss is the plain one; with
+    holes it weighs their error up, normalised so a uniform error keeps its value."""
+    from fgcli.nets.mvinterp_train import MVInterpTask
+
+    plain = _task(tiny_data)
+    weighted = MVInterpTask(str(tiny_data / "train"), str(tiny_data / "val"), patch=32,
+                            batch=2, hole_weight=4.0)
+    assert weighted.config()["hole_weight"] == 4.0 and "hole_weight" not in plain.config()
+    b = plain.batch(0, 0)
+    model = plain.model
+    with torch.no_grad():
+        b["cue"][:, 1] = 0.0
+        assert torch.allclose(plain.loss(model, b)["charbonnier"],
+                              weighted.loss(model, b)["charbonnier"], rtol=1e-5)
+        b["cue"][:, 1, :4] = 1.0  # holes where the error is large
+        b["gt"][:, :, :4] += 0.5
+        assert weighted.loss(model, b)["charbonnier"] > plain.loss(model, b)["charbonnier"]

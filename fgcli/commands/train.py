@@ -49,6 +49,9 @@ def _widths(ctx, param, value):
 @click.option("--light-scenes", type=click.IntRange(min=0), default=0, show_default=True,
               help="Also render and train on this many shading-only random scenes (static "
                    "geometry and camera, moving lights; seeds from 2,000,000).")
+@click.option("--hole-weight", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Extra Charbonnier weight on guide-hole pixels (the splat left them "
+                   "empty: the network alone chooses the frame there); 0 = plain mean.")
 @click.option("--init", type=click.Path(dir_okay=False, exists=True),
               help="Start a new run from this checkpoint's weights (fine-tuning).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -58,7 +61,8 @@ def _widths(ctx, param, value):
                    "(the shipped weights live in fgcli/nets/weights/).")
 @click.option("--no-progress", is_flag=True)
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
-        no_guides, name, light_scenes, init, seed, threads, export_dir, no_progress):
+        no_guides, name, light_scenes, hole_weight, init, seed, threads, export_dir,
+        no_progress):
     """Train NETWORK on data rendered from random scenes (never the evaluation scenes).
 
     \b
@@ -92,7 +96,7 @@ def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch,
 
     task = MVInterpTask(tr, va, widths=widths, patch=patch, batch=batch, limit=scenes,
                         val_limit=val_scenes, seed=seed, guides=not no_guides,
-                        extra_dirs=extra)
+                        extra_dirs=extra, hole_weight=hole_weight)
     res = train(task, run_dir, steps, lr=lr, seed=seed, progress=not no_progress,
                 log=lambda m: click.echo(m, err=True), init=init)
     click.echo(f"trained {res['steps']} steps in {res['seconds']:.0f} s; best validation "

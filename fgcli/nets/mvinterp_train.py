@@ -40,7 +40,7 @@ class MVInterpTask:
 
     def __init__(self, train_dir: str, val_dir: str, widths=None, patch: int = 128,
                  batch: int = 8, limit: int | None = None, val_limit: int | None = None,
-                 seed: int = 0, guides: bool = True, extra_dirs=()):
+                 seed: int = 0, guides: bool = True, extra_dirs=(), hole_weight: float = 0.0):
         from fgcli.nets.mvinterp import DEFAULT_WIDTHS, MVInterpNet
 
         self.widths = tuple(widths or DEFAULT_WIDTHS)
@@ -48,6 +48,10 @@ class MVInterpTask:
         # zero guides and cue channels in training, validation and at run time
         self.guides = bool(guides)
         self.patch, self.batch_size = int(patch), int(batch)
+        # extra Charbonnier weight on guide-hole pixels (no frame-1 surface splats there:
+        # the guiding flows carry no information and the network alone must choose the
+        # frame); rare pixels, so a plain mean barely sees them
+        self.hole_weight = float(hole_weight)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)  # the initial weights depend on the seed only
             self.model = MVInterpNet(self.widths)
@@ -62,6 +66,7 @@ class MVInterpTask:
         return {"widths": list(self.widths), "patch": self.patch, "batch": self.batch_size,
                 "samples": self.n_train, "augment": "flip,reverse",
                 **({} if self.guides else {"guides": False}),
+                **({"hole_weight": self.hole_weight} if self.hole_weight else {}),
                 **({"extra": self.extra} if self.extra else {})}
 
     def batch(self, seed: int, step: int) -> dict:
@@ -115,6 +120,10 @@ class MVInterpTask:
 
         out = model(b["c0"], b["c1"], b["g0"], b["g1"], b["cue"], b["t"])[0]
         y, g = tonemap(out), tonemap(b["gt"])
+        if self.hole_weight:
+            w = 1.0 + self.hole_weight * (b["cue"][:, 1:2] > 0.5).to(y.dtype)
+            ch = (torch.sqrt((y - g) ** 2 + 1e-6) * w).sum() / (w.sum() * y.shape[1])
+            return {"charbonnier": ch, "census": census(y, g)}
         return {"charbonnier": charbonnier(y, g), "census": census(y, g)}
 
     def validate(self, model, dev) -> dict:
