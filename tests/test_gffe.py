@@ -451,3 +451,31 @@ def test_window_fills_out_of_screen_holes_from_the_overscan_border(overscan_seq,
     on, off = res["gffe-extrap"], res["gffe-extrap:window=off"]
     assert on["psnr"] > off["psnr"] + 0.03
     assert on["psnr_disoccluded"] > off["psnr_disoccluded"] + 0.1
+
+
+def test_a_data_window_shifted_off_the_display_window_is_no_border(tmp_path, overscan_seq):
+    """Only a data window that contains the whole display window is an overscan border; one
+    reaching out on one side and short of it on another is read as before (padded)."""
+    from fgcli.io import exr, layouts
+    from fgcli.io.options import open_input
+
+    f = open_input(str(overscan_seq / "input")).read(2)
+    chans, types = layouts.encode(f.replace(overscan=None), "fgen")
+    h, w = f.height, f.width
+    for name, win, border in (("shifted", (-4, 2), False), ("around", (-4, -4), True)):
+        ww, hh = (w + 8, h + 8) if border else (w + 4, h - 2)
+        x0, y0 = win
+
+        def grown(a):  # the display pixels placed in a (hh, ww) window at (x0, y0)
+            out = np.zeros((hh, ww), a.dtype)
+            ys, xs = slice(max(0, -y0), min(hh, h - y0)), slice(max(0, -x0), min(ww, w - x0))
+            out[ys, xs] = a[ys.start + y0:ys.stop + y0, xs.start + x0:xs.stop + x0]
+            return out
+
+        d = tmp_path / name
+        d.mkdir()
+        exr.write_exr(str(d / "s.0001.exr"), {k: grown(v) for k, v in chans.items()}, types,
+                      {}, "zip", data_window=(x0, y0, ww, hh), display=(w, h))
+        g = open_input(str(d)).read(1)
+        assert (g.overscan is not None) == border, name
+        assert g.color.shape[-2:] == (h, w)

@@ -340,20 +340,27 @@ class MappedLayout:
         raw = RawFrame(number, out, valid, cam, dict(cpart.attributes),
                        dict(cpart.attr_types), header.path, set(helpers))
         if borders and "depth" in out:
-            raw.overscan = self._overscan(info, borders, cam, header.path, number)
+            raw.overscan = self._overscan(info, borders, cam, header.path, number,
+                                          (w, h))
         return raw
 
-    def _overscan(self, info: LayoutInfo, borders: dict, cam, path, number) -> dict | None:
+    def _overscan(self, info: LayoutInfo, borders: dict, cam, path, number,
+                  display: tuple[int, int]) -> dict | None:
         """The rendered region beyond the display window (an overscan border), colour and
         depth: {"origin": (x, y) relative to the display window, "color": (3, He, We),
-        "depth": (1, He, We)}; None unless both fields have it with one extent (or when
-        depth is stored as distance along the ray, whose conversion is per display pixel)."""
+        "depth": (1, He, We)}; None unless both fields have it with one extent that
+        contains the whole display window (a data window shifted off it is no border), or
+        when depth is stored as distance along the ray (its conversion is per display
+        pixel)."""
         refs = info.refs("color") + info.refs("depth")
         if self.conv.depth_kind == "distance" or not all(r in borders for r in refs):
             return None
         if len({(b[0].shape, b[1], b[2]) for b in (borders[r] for r in refs)}) != 1:
             return None
-        _, x, y = borders[refs[0]]
+        plane, x, y = borders[refs[0]]
+        (he, we), (w, h) = plane.shape, display
+        if not (x <= 0 and y <= 0 and x + we >= w and y + he >= h):
+            return None
         color = _clean(planes([borders[r][0] for r in info.refs("color")], copy=True),
                        number, "color", None)
         depth = planes([borders[r][0] for r in info.refs("depth")], copy=True)
