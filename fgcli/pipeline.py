@@ -297,6 +297,7 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
                    and ctx.get("color0") is not None)
     score = None
     on_host = reads_back(ctx["color1"])
+    extra = {}  # facts only the GPU path has
 
     def nonzero(t):
         # NaN counts as motion. numba: a scan that stops at the first moving pixel; torch:
@@ -336,12 +337,10 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
         score = got[slots["score"]] if "score" in slots else None
         if "mv1" in slots:  # largest |component| of frame 1's vectors (NaN: unknown)
             i = slots["mv1"]
-            mv1_absmax = max(abs(got[i]), abs(got[i + 1]))
+            extra["mv1_absmax"] = max(abs(got[i]), abs(got[i + 1]))
     facts = {"any_motion": any_motion,
              "has_history": ctx.get("color0") is not None,
-             "history_motion": history_motion}
-    if not on_host and mv1 is not None and mv1.numel():
-        facts["mv1_absmax"] = mv1_absmax
+             "history_motion": history_motion, **extra}
     if detect_cuts:
         from fgcli.ops import confirm_cut
 

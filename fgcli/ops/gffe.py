@@ -760,17 +760,29 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     if offscreen == "clamp":
         px = torch.where(ok, px.clamp(0.5, W - 0.5), px)
         py = torch.where(ok, py.clamp(0.5, H - 0.5), py)
-    idx, inside = _sample_nearest_idx(px, py, H, W)
-    d1 = torch.nan_to_num(depth1, nan=0.0)
-    seen = gather_pixels(d1, idx).view(H, W)
-    dq = depth[0]
-    deep = (seen >= dq * (1.0 - depth_tol)) | (torch.isinf(seen) & torch.isinf(dq))
-    took = (~valid[0]) & ok & inside.view(H, W) & deep
-    flow = torch.stack([torch.where(took, px - a["xh"], torch.zeros_like(px)),
-                        torch.where(took, py - a["yh"], torch.zeros_like(py))])
+    took = _proxy_took(valid, depth, depth1, px, py, ok, depth_tol)
+    flow = _flow_where(took, px, py, a)
     smp, _ = backward_warp(sanitize_values(color1), flow, "bilinear")
     out = torch.where(took[None], smp, color)
     return out, flow, took[None]
+
+
+def _proxy_took(valid, depth, src_depth, sx, sy, ok, depth_tol):
+    """(H, W) bool: the holes whose proxy point (sx, sy) (pixel coordinates in the source
+    arrays, src_depth (1, Hs, Ws)) lies on them, in front of the camera, where the source
+    shows a surface at least the proxy's depth (not the occluder)."""
+    H, W = depth.shape[-2:]
+    idx, inside = _sample_nearest_idx(sx, sy, *src_depth.shape[-2:])
+    seen = gather_pixels(torch.nan_to_num(src_depth, nan=0.0), idx).view(H, W)
+    dq = depth[0]
+    deep = (seen >= dq * (1.0 - depth_tol)) | (torch.isinf(seen) & torch.isinf(dq))
+    return (~valid[0]) & ok & inside.view(H, W) & deep
+
+
+def _flow_where(took, px, py, a):
+    """(2, H, W) offsets from each pixel to (px, py) where took, else 0."""
+    return torch.stack([torch.where(took, px - a["xh"], torch.zeros_like(px)),
+                        torch.where(took, py - a["yh"], torch.zeros_like(py))])
 
 
 def _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol, offscreen):
@@ -785,18 +797,12 @@ def _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol, off
     if offscreen == "clamp":
         ex = torch.where(ok, ex.clamp(0.5, We - 0.5), ex)
         ey = torch.where(ok, ey.clamp(0.5, He - 0.5), ey)
-    idx, inside = _sample_nearest_idx(ex, ey, He, We)
-    H, W = color.shape[-2:]
-    seen = gather_pixels(torch.nan_to_num(d_ext, nan=0.0), idx).view(H, W)
-    dq = depth[0]
-    deep = (seen >= dq * (1.0 - depth_tol)) | (torch.isinf(seen) & torch.isinf(dq))
-    took = (~valid[0]) & ok & inside.view(H, W) & deep
+    took = _proxy_took(valid, depth, d_ext, ex, ey, ok, depth_tol)
     # bilinear in the border arrays (pixel-centre coordinates, edge clamped)
     g = torch.stack([ex / We * 2.0 - 1.0, ey / He * 2.0 - 1.0], -1)[None]
     g = torch.nan_to_num(g, nan=-4.0).clamp(-4.0, 4.0)
     smp = F.grid_sample(sanitize_values(c_ext)[None], g, mode="bilinear",
                         padding_mode="border", align_corners=False)[0]
-    flow = torch.stack([torch.where(took, px - a["xh"], torch.zeros_like(px)),
-                        torch.where(took, py - a["yh"], torch.zeros_like(py))])
+    flow = _flow_where(took, px, py, a)
     out = torch.where(took[None], smp, color)
     return out, flow, took[None]

@@ -89,9 +89,8 @@ class FSR3FieldFill(Stage):
     outputs = ("game_mv", "game_holes")
 
     def run(self, ctx):
-        from fgcli.ops.fsr3 import fill_vector_field, unpack_vector_field
-
         from fgcli.ops._util import reads_back
+        from fgcli.ops.fsr3 import fill_vector_field, unpack_vector_field
 
         vec, prio, valid = unpack_vector_field(ctx["game_field"])
         if reads_back(valid) and bool(valid.all()):  # (the GPU fills: no holes, no change)

@@ -65,17 +65,28 @@ def _depth_and_mv(ctx, f0, f1, alpha):
     return depth, mv
 
 
-def static_pixels(g0, g1, cue, depth_rel: float = 0.02):
-    """(1, H, W) bool: both guiding flows below 1e-3 px in each component, no hole, and the
-    guided samples' depths within depth_rel of each other (cue channel 0 is the clamped
-    log(d0 / d1) / CUE_LOG_RANGE, channel 1 the hole mask: fgcli.ops.mvinterp.guide_cues)."""
+def _cue_depth_limit(depth_rel: float) -> float:
+    """The depth cue (channel 0 of fgcli.ops.mvinterp.guide_cues: the clamped log(d0 / d1)
+    / CUE_LOG_RANGE) of two depths depth_rel apart."""
     import math
 
     from fgcli.ops.mvinterp import CUE_LOG_RANGE
 
+    return math.log1p(depth_rel) / CUE_LOG_RANGE
+
+
+def static_pixels(g0, g1, cue, depth_rel: float = 0.02):
+    """(1, H, W) bool: both guiding flows below 1e-3 px in each component, no hole, and the
+    guided samples' depths within depth_rel of each other (cue channel 1 is the hole mask)."""
     still = (g0.abs().amax(0, keepdim=True) < 1e-3) & (g1.abs().amax(0, keepdim=True) < 1e-3)
-    same = cue[0:1].abs() <= math.log1p(depth_rel) / CUE_LOG_RANGE
+    same = cue[0:1].abs() <= _cue_depth_limit(depth_rel)
     return still & same & (cue[1:2] < 0.5)
+
+
+def occluder_holes(cue, depth_rel: float = 0.02):
+    """(1, H, W) bool: guide holes (no frame-1 surface splats there) whose frame-1 guided
+    sample is nearer than frame 0's by more than depth_rel: frame 1 shows an occluder."""
+    return (cue[1:2] > 0.5) & (cue[0:1] > _cue_depth_limit(depth_rel))
 
 
 TRAINED_TAUS = (0.25, 0.75)  # the shipped weights saw tau in {0.25, 0.5, 0.75}
@@ -108,8 +119,8 @@ class MVInterpNet(Stage):
         Option("static_crossfade", "bool", True, "where both guiding flows are zero, the "
                "pixel is no hole, the two frames' depths agree (2 %) and their colours nearly "
                "agree (static_tol), cross-fade the frames instead of the network's frame "
-               "(fgen extension; needs the guide stage; docs/results.md: +1.6 dB on shadows, "
-               "chosen on held-out random scenes)"),
+               "(fgen extension; needs the guide stage; tolerance chosen on held-out random "
+               "scenes, figures in docs/results.md)"),
         Option("static_tol", "float", 0.03, "static_crossfade only where the two frames' "
                "tone-mapped colours differ by at most this (max over channels; mu-law units, "
                "1 = the tone map's range): a near-constant pixel is exact as a cross-fade, a "
@@ -167,12 +178,8 @@ class MVInterpNet(Stage):
         return {"color": guide_warp(c0, c1, g0, g1, a), "depth": depth, "mv": mv}
 
     def run(self, ctx):
-        import math
-
         import torch
         import torch.nn.functional as F
-
-        from fgcli.ops.mvinterp import CUE_LOG_RANGE
 
         from fgcli.nets.mvinterp import MULTIPLE
         from fgcli.nets.runtime import run_mvinterp
@@ -195,8 +202,7 @@ class MVInterpNet(Stage):
             # linear in M: colour + (M' - M) (W(I0, f0) - W(I1, f1))
             from fgcli.nets.blocks import warp
 
-            occl = (cue[1:2] > 0.5) & (cue[0:1] > math.log1p(0.02) / CUE_LOG_RANGE)
-            dm = torch.where(occl, (self.hole_mask_min - mask).clamp_min(0.0),
+            dm = torch.where(occluder_holes(cue), (self.hole_mask_min - mask).clamp_min(0.0),
                              torch.zeros_like(mask))
             color = color + dm * (warp(c0[None], f0[None])[0] - warp(c1[None], f1[None])[0])
         color = color.clamp_min(0.0)
