@@ -262,8 +262,9 @@ class IOThreads:
     running beside the compute, a 2-core machine then runs 4-6 busy threads on 2 cores and
     every one slows the others (measured per frame at 1080p on 2 cores: compute 965 ms
     instead of 380, read 970, write 1110). While the I/O threads run:
-    - limit_io(): OpenImageIO uses `FGEN_OIIO_THREADS` threads per file (default 1: the
-      reader and the writer already run beside each other and the compute; with
+    - limit_io(): OpenImageIO (and the OpenEXR writer) use `FGEN_OIIO_THREADS` threads per
+      file (default 1: the reader and the writer already run beside each other and the
+      compute; with
       --device cuda the compute leaves the cores free, and OpenImageIO keeps its default
       of one thread per core);
     - limit_compute(): the compute uses at most `FGEN_COMPUTE_THREADS` threads (default:
@@ -288,10 +289,16 @@ class IOThreads:
 
         if device.startswith("cuda") and "FGEN_OIIO_THREADS" not in os.environ:
             return  # the compute runs on the GPU: the decoder keeps one thread per core
+        from fgcli.io import exr
+
         n = self._env("FGEN_OIIO_THREADS", 1)
         for k in ("threads", "exr_threads"):
             self.saved.setdefault(("oiio", k), oiio.get_int_attribute(k, 0))
             oiio.attribute(k, n)
+        was = exr.exr_threads()  # the OpenEXR writer (fgcli.io.exr) alike
+        if was is not None:
+            self.saved.setdefault("openexr", was)
+            exr.set_exr_threads(n)
 
     def limit_compute(self, backend: str, device: str) -> None:
         if device.startswith("cuda"):
@@ -317,6 +324,10 @@ class IOThreads:
                 import numba
 
                 numba.set_num_threads(v)
+            elif key == "openexr":
+                from fgcli.io import exr
+
+                exr.set_exr_threads(v)
             else:
                 import OpenImageIO as oiio
 

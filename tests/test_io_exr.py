@@ -165,3 +165,80 @@ def test_not_exr_and_truncated(tmp_path):
         exr.read_header(str(tmp_path / "none.exr"))
     with pytest.raises(InputError, match="missing channel"):
         exr.read_channels(p, [(0, "Q")])
+
+
+def _both_writers(tmp_path, monkeypatch, parts, **kw):
+    """Write the parts with the OpenEXR writer and with OpenImageIO; their headers."""
+    p_fast, p_oiio = str(tmp_path / "fast.exr"), str(tmp_path / "oiio.exr")
+    used = []
+    real = exr._write_openexr
+
+    def spy(*a, **k):
+        used.append(real(*a, **k))
+        return used[-1]
+
+    monkeypatch.setattr(exr, "_write_openexr", spy)
+    exr.write_parts(p_fast, parts, **kw)
+    monkeypatch.setattr(exr, "_openexr", lambda: None)
+    exr.write_parts(p_oiio, parts, **kw)
+    monkeypatch.undo()
+    return p_fast, p_oiio, used
+
+
+@pytest.mark.skipif(exr._openexr() is None, reason="OpenEXR binding not installed")
+def test_openexr_writer_matches_openimageio(tmp_path, monkeypatch):
+    """The fast writer (OpenEXR's binding) gives what OpenImageIO writes: the same
+    channels and types, pixels, data and display windows, parts, and every attribute with
+    its type (fgen's own, matrices, vectors, OpenImageIO's names for standard ones)."""
+    a, b, c = planes(5, 7, 3, seed=3)
+    a[0, 0], b[1, 1] = np.nan, np.inf  # non-finite values, and one beyond half's range
+    a[2, 2] = 1e6
+    attrs = {"fgen:alpha": 0.5, "fgen:n": 3, "fgen:s": "text", "owner": "studio",
+             "worldToCamera": np.eye(4, dtype=np.float32) * 2, "v3": [1.0, 2.0, 3.0],
+             "screenWindowCenter": [0.5, 0.25], "names": ["l", "r"], "nested": {"a": 1},
+             "ImageDescription": "desc", "PixelAspectRatio": 1.0, "m33": np.eye(3).tolist()}
+    parts = [dict(channels={"R": a, "G": b, "Z": c}, types={"Z": "float"}, attributes=attrs,
+                  data_window=(1, 2, 7, 5), display=(9, 8))]
+    fast, slow, used = _both_writers(tmp_path, monkeypatch, parts)
+    assert used == [True]
+    hf, hs = exr.read_header(fast).parts[0], exr.read_header(slow).parts[0]
+    assert dict(zip(hf.channels, hf.formats)) == dict(zip(hs.channels, hs.formats))
+    assert (hf.x, hf.y, hf.data_width, hf.data_height, hf.width, hf.height) == \
+        (hs.x, hs.y, hs.data_width, hs.data_height, hs.width, hs.height) == (1, 2, 7, 5, 9, 8)
+    assert hf.attr_types == hs.attr_types
+    assert json_equal(hf.attributes, hs.attributes)
+    gf = exr.read_channels(fast, [(0, "R"), (0, "G"), (0, "Z")])
+    gs = exr.read_channels(slow, [(0, "R"), (0, "G"), (0, "Z")])
+    for k in gf:
+        assert np.array_equal(gf[k], gs[k], equal_nan=True)
+    # multi-part with views
+    parts = [dict(channels={"R": a}, name="rgba", view="left"),
+             dict(channels={"Z": c}, types={"Z": "float"}, name="depth", view="right")]
+    fast, slow, used = _both_writers(tmp_path, monkeypatch, parts)
+    assert used == [True]
+    hf, hs = exr.read_header(fast), exr.read_header(slow)
+    assert [(p.name, p.view) for p in hf.parts] == [(p.name, p.view) for p in hs.parts] == \
+        [("rgba", "left"), ("depth", "right")]
+
+
+def json_equal(x, y) -> bool:
+    import json
+
+    return json.dumps(x, sort_keys=True, default=str) == json.dumps(y, sort_keys=True,
+                                                                     default=str)
+
+
+@pytest.mark.skipif(exr._openexr() is None, reason="OpenEXR binding not installed")
+def test_openexr_writer_leaves_exotic_types_to_openimageio(tmp_path, monkeypatch):
+    """A timecode (or tiles, or a compression level) is written by OpenImageIO, exactly."""
+    (r,) = planes(n=1)
+    used = []
+    real = exr._write_openexr
+    monkeypatch.setattr(exr, "_write_openexr", lambda *a, **k: used.append(real(*a, **k))
+                        or used[-1])
+    p = str(tmp_path / "t.exr")
+    exr.write_exr(p, {"R": r}, None, {"smpte:TimeCode": [1, 2]},
+                  attribute_types={"smpte:TimeCode": "timecode"})
+    assert used == [False]
+    assert exr.read_header(p).parts[0].attr_types["smpte:TimeCode"] == "timecode"
+    assert os.listdir(tmp_path) == ["t.exr"]  # the fast writer's temporary is gone

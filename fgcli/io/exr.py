@@ -1,4 +1,5 @@
-"""Low-level OpenEXR access through OpenImageIO, numpy only (no torch import here).
+"""Low-level OpenEXR access through OpenImageIO (and the OpenEXR library's own binding for
+writing, where it is faster: see _write_openexr), numpy only (no torch import here).
 
 Channels are always looked up by name (OpenEXR re-sorts them). Every part of a multi-part
 file is listed; data windows smaller than the display window are padded to the display
@@ -646,6 +647,167 @@ def _finish(tmp: str, path: str) -> None:
         raise OutputError(f"cannot rename into place: {e.strerror}", file=path) from None
 
 
+# ------------------------------------------------------------------ the OpenEXR writer
+# OpenImageIO's Python write of a file whose channels mix half and float converts the
+# float32 buffer channel by channel through a generic path: a 1080p 6-channel frame
+# costs ~320 ms of CPU before compression (~410 ms with zip). The OpenEXR library's own
+# binding takes each channel as a numpy array of its file type and writes the same
+# pixels in ~200 ms with zip (docs/performance.md). fgen writes with it whenever every
+# attribute has a type it carries exactly, and with OpenImageIO otherwise.
+
+# OpenImageIO's names for standard OpenEXR attributes (as OpenImageIO's reader reports
+# them) -> the OpenEXR names; derived OpenImageIO fields are dropped as it drops them
+_EXR_NAMES = {"DateTime": "capDate", "ImageDescription": "comments", "Copyright": "owner",
+              "PixelAspectRatio": "pixelAspectRatio", "XResolution": "xDensity",
+              "ExposureTime": "expTime", "FNumber": "aperture"}
+_OIIO_DERIVED = {"YResolution", "ResolutionUnit"}
+_EXR_COMPRESSION = {"none": "NO_COMPRESSION", "rle": "RLE_COMPRESSION",
+                    "zips": "ZIPS_COMPRESSION", "zip": "ZIP_COMPRESSION",
+                    "piz": "PIZ_COMPRESSION", "pxr24": "PXR24_COMPRESSION",
+                    "b44": "B44_COMPRESSION", "b44a": "B44A_COMPRESSION",
+                    "dwaa": "DWAA_COMPRESSION", "dwab": "DWAB_COMPRESSION"}
+_VEC = {"float2": (np.float32, 2), "vector2": (np.float32, 2), "int2": (np.int32, 2),
+        "vector2i": (np.int32, 2), "vector": (np.float32, 3), "float3": (np.float32, 3),
+        "point": (np.float32, 3), "normal": (np.float32, 3), "matrix": (np.float32, 16),
+        "matrix44": (np.float32, 16), "matrix33": (np.float32, 9),
+        "matrixd": (np.float64, 16)}
+
+
+_EXR_THREADS_SET = False
+
+
+def _openexr():
+    """The OpenEXR binding (PyPI `OpenEXR`, 3.3 or later), or None. Its global thread pool
+    starts at one thread per core (OpenImageIO's default; the library's own is none) unless
+    set_exr_threads() chose otherwise."""
+    global _EXR_THREADS_SET
+    try:
+        import OpenEXR
+    except ImportError:
+        return None
+    if not hasattr(OpenEXR, "File") or not hasattr(OpenEXR, "Part"):
+        return None  # the pre-3.3 binding
+    if not _EXR_THREADS_SET:
+        _EXR_THREADS_SET = True
+        if OpenEXR.global_thread_count() == 0:
+            OpenEXR.set_global_thread_count(os.cpu_count() or 1)
+    return OpenEXR
+
+
+def exr_threads() -> int | None:
+    """Threads the OpenEXR writer uses per file (None without the binding)."""
+    exr = _openexr()
+    return None if exr is None else max(1, exr.global_thread_count())
+
+
+def set_exr_threads(n: int) -> None:
+    """n threads per file for the OpenEXR writer (1: the calling thread alone)."""
+    exr = _openexr()
+    if exr is not None:
+        exr.set_global_thread_count(0 if n <= 1 else int(n))
+
+
+class _Unsupported(Exception):
+    """An attribute (or layout) the OpenEXR writer does not carry exactly."""
+
+
+def _exr_attr(key: str, value, typename: str | None):
+    """(OpenEXR name, binding value) of one attribute, as _set_attr writes it through
+    OpenImageIO; None to leave it out; _Unsupported for any other type."""
+    if value is None or key in _OIIO_DERIVED:
+        return None
+    key = _EXR_NAMES.get(key, key)
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    t = typename or STANDARD_TYPES.get(key) or _infer_type(value)
+    if t is None:
+        try:
+            return key, json.dumps(value)
+        except (TypeError, ValueError):
+            return None
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, (list, tuple))
+                                                          for v in value):
+        value = [x for row in value for x in row]
+    if isinstance(value, bool):
+        value = int(value)
+    try:
+        if t == "int" and not isinstance(value, (list, tuple)):
+            return key, int(value)
+        if t == "float" and not isinstance(value, (list, tuple)):
+            return key, float(value)
+        if t == "string" and not isinstance(value, (list, tuple)):
+            return key, str(value)
+        if t.startswith("string[") and isinstance(value, (list, tuple)) and \
+                all(isinstance(v, str) for v in value):
+            return key, [str(v) for v in value]
+        if t in _VEC and isinstance(value, (list, tuple)):
+            dt, n = _VEC[t]
+            a = np.asarray(value, dtype=dt)
+            if a.size != n:
+                raise _Unsupported(key)
+            return key, a.reshape({16: (4, 4), 9: (3, 3)}.get(n, (n,)))
+    except (TypeError, ValueError):
+        pass
+    raise _Unsupported(key)
+
+
+def _write_openexr(tmp: str, parts: list[dict], compression: str,
+                   tile: int | None) -> bool:
+    """Write the parts with the OpenEXR binding; False (nothing written) when the binding
+    is missing or something is not carried exactly (then OpenImageIO writes the file)."""
+    exr = _openexr()
+    comp = _EXR_COMPRESSION.get(compression)
+    if exr is None or comp is None or tile:
+        return False
+    try:
+        out = []
+        for i, p in enumerate(parts):
+            chans = p["channels"]
+            names = list(chans)
+            types = p.get("types") or {}
+            h, w = np.asarray(chans[names[0]]).shape
+            dw, dh = p.get("display") or (w, h)
+            x, y = (p["data_window"][0], p["data_window"][1]) if p.get("data_window") \
+                else (0, 0)
+            hdr = {"compression": getattr(exr, comp), "type": exr.scanlineimage,
+                   "dataWindow": (np.array([x, y], np.int32),
+                                  np.array([x + w - 1, y + h - 1], np.int32)),
+                   "displayWindow": (np.array([0, 0], np.int32),
+                                     np.array([dw - 1, dh - 1], np.int32))}
+            atypes = p.get("attribute_types") or {}
+            for k, v in (p.get("attributes") or {}).items():
+                if k in STRUCTURAL_ATTRIBUTES or k.startswith(("oiio:", "openexr:")) or \
+                        k in ("name", "view"):
+                    continue
+                kv = _exr_attr(k, v, atypes.get(k))
+                if kv is not None:
+                    hdr[kv[0]] = kv[1]
+            if p.get("view") is not None:
+                hdr["view"] = str(p["view"])
+            name = p.get("name")
+            if name is None and len(parts) > 1:
+                name = f"part{i}"
+            data = {}
+            for n in names:
+                a = np.asarray(chans[n])
+                if a.shape != (h, w):
+                    raise _Unsupported(n)
+                dt = np.float32 if types.get(n, "half") == "float" else np.float16
+                with np.errstate(over="ignore", invalid="ignore"):  # beyond half: inf
+                    data[n] = np.ascontiguousarray(a, dtype=dt)
+            out.append((hdr, data, name))
+    except _Unsupported:
+        return False
+    if len(out) == 1 and out[0][2] is None:
+        f = exr.File(out[0][0], out[0][1])
+    else:
+        for hdr, _, name in out:
+            hdr["name"] = name
+        f = exr.File([exr.Part(hdr, data, name) for hdr, data, name in out])
+    f.write(tmp)
+    return True
+
+
 def write_exr(path: str, channels: dict[str, np.ndarray], types: dict[str, str] | None = None,
               attributes: dict | None = None, compression: str = "zip", *,
               attribute_types: dict | None = None, tile: int | None = None,
@@ -667,10 +829,31 @@ def write_parts(path: str, parts: list[dict], compression: str = "zip",
     """Write a (multi-part) EXR atomically. Each part is a dict with `channels`, and optional
     `types`, `attributes`, `attribute_types`, `name`, `view`, `data_window` (x, y, w, h) and
     `display` (width, height). All parts are tiled (tile=N) or all scanline."""
-    oiio = _oiio()
     path = str(path)
     if not parts or not all(p.get("channels") for p in parts):
         raise OutputError("nothing to write", file=path)
+    if _openexr() is not None and not tile and compression in _EXR_COMPRESSION:
+        folder = os.path.dirname(os.path.abspath(path))
+        tmp = _temp_in(folder, path)
+        try:
+            written = _write_openexr(tmp, parts, compression, tile)
+        except BaseException as e:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            if isinstance(e, (KeyboardInterrupt, SystemExit, OutputError)):
+                raise
+            raise OutputError(f"write failed: {e}", file=path) from None
+        if written:
+            try:
+                _finish(tmp, path)
+            except BaseException:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+                raise
+            return
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    oiio = _oiio()
     specs, datas = [], []
     for p in parts:
         spec, data = _make_spec(p["channels"], p.get("types"), p.get("attributes"),
