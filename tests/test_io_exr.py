@@ -242,3 +242,62 @@ def test_openexr_writer_leaves_exotic_types_to_openimageio(tmp_path, monkeypatch
     assert used == [False]
     assert exr.read_header(p).parts[0].attr_types["smpte:TimeCode"] == "timecode"
     assert os.listdir(tmp_path) == ["t.exr"]  # the fast writer's temporary is gone
+
+
+@pytest.mark.skipif(exr._openexr() is None, reason="OpenEXR binding not installed")
+def test_openexr_reader_matches_openimageio(tmp_path, monkeypatch):
+    """The one-pass reader (OpenEXR's binding) returns what OpenImageIO's span reads
+    return: mixed types, data windows with fill, overscan borders, parts."""
+    a, b, c = planes(6, 9, 3, seed=5)
+    a[0, 0], c[1, 1] = np.nan, -np.inf
+    p = str(tmp_path / "r.exr")
+    exr.write_parts(p, [dict(channels={"R": a, "G": b, "Z": c}, types={"Z": "float"},
+                             data_window=(-1, 1, 9, 6), display=(8, 8), name="rgba"),
+                        dict(channels={"mv.x": c}, types={"mv.x": "float"}, name="mv",
+                             data_window=(-1, 1, 9, 6), display=(8, 8))])
+    want = [(0, "R"), (0, "Z"), (1, "mv.x")]
+    calls = []
+    real = exr._read_openexr
+    monkeypatch.setattr(exr, "_read_openexr", lambda *x: calls.append(real(*x)) or calls[-1])
+    bf = {}
+    fast = exr.read_channels(p, want, fill={(0, "Z"): 7.0}, borders=bf)
+    assert calls and calls[0] is not None
+    monkeypatch.setattr(exr, "_openexr", lambda: None)
+    bs = {}
+    slow = exr.read_channels(p, want, fill={(0, "Z"): 7.0}, borders=bs)
+    for k in want:
+        assert fast[k].dtype == np.float32 and np.array_equal(fast[k], slow[k], equal_nan=True)
+    assert bf.keys() == bs.keys() and all(np.array_equal(bf[k][0], bs[k][0], equal_nan=True)
+                                          and bf[k][1:] == bs[k][1:] for k in bf)
+
+
+@pytest.mark.skipif(exr._openexr() is None, reason="OpenEXR binding not installed")
+def test_damaged_file_prints_nothing_and_names_itself(tmp_path, capfd):
+    """A damaged chunk: the OpenEXR library's own messages never reach the terminal; the
+    file is read again by OpenImageIO, whose error names it."""
+    r = np.random.default_rng(1).random((64, 64), dtype=np.float32)
+    p = str(tmp_path / "d.exr")
+    exr.write_exr(p, {"R": r, "G": r[::-1].copy()}, {"R": "float", "G": "float"})
+    data = bytearray(open(p, "rb").read())
+    mid = len(data) // 2
+    data[mid:mid + 200] = b"\x55" * 200
+    open(p, "wb").write(bytes(data))
+    with pytest.raises(InputError) as e:
+        exr.read_channels(p, [(0, "R"), (0, "G")])
+    assert "d.exr" in str(e.value)
+    out, err = capfd.readouterr()
+    assert "EXR_ERR" not in out + err and "Warning" not in out + err
+
+
+def test_captured_output_of_others_goes_through(capfd):
+    """While the library's messages are held back, other output is only delayed."""
+    with exr._library_output_captured():
+        os.write(2, b"progress 1/3\n")
+        os.write(2, b"x.exr: (EXR_ERR_CORRUPT_CHUNK) Unable to decompress\n")
+        os.write(1, b"Warning: Exception raised reading pixel data for part 0 - x\n")
+        os.write(1, b"result\n")
+        print("Warning: Exception raised reading pixel data for part 1 - y")
+        print("more", flush=True)
+    out, err = capfd.readouterr()
+    assert out == "more\nresult\n" or out == "result\nmore\n"
+    assert err == "progress 1/3\n"
