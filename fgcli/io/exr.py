@@ -12,7 +12,6 @@ carried from a source frame into an output is written back with the same type (a
 """
 from __future__ import annotations
 
-import io
 import json
 import mmap
 import os
@@ -569,50 +568,64 @@ def _flush_all() -> None:
         pass
 
 
+class _DropLibraryLines:
+    """sys.stdout while the binding reads: every write goes straight to the stream it
+    wraps, except the binding's own warning line (it prints through Python)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self._drop_newline = False
+
+    def write(self, text):
+        if _EXR_NOISE.match(text.encode("utf-8", "replace")):
+            self._drop_newline = not text.endswith("\n")
+            return len(text)
+        if self._drop_newline and text == "\n":
+            self._drop_newline = False
+            return 1
+        self._drop_newline = False
+        return self._stream.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
 @contextmanager
 def _library_output_captured():
-    """File descriptors 1 and 2 go to temporary files while the block runs; afterwards
-    what was written there, less the OpenEXR library's own messages, goes where it was
-    going (another thread's output is only delayed). One block at a time."""
+    """Hold back the OpenEXR library's messages on a damaged file while the block runs:
+    its C core writes to file descriptor 2, which goes to a temporary file and afterwards,
+    less those lines, to where it was going (another thread's output there is delayed by
+    one file read, never lost); the binding prints through sys.stdout, which drops its
+    warning line and passes everything else through at once. One block at a time."""
     with _CAPTURE_LOCK:
         try:
             _flush_all()
-            saved = [os.dup(1), os.dup(2)]
+            saved = os.dup(2)
         except (OSError, ValueError, AttributeError):
-            yield  # no file descriptors to capture (an embedding host): as is
+            yield  # no file descriptor to capture (an embedding host): as is
             return
-        tmps = [tempfile.TemporaryFile(), tempfile.TemporaryFile()]
-        # the binding prints through Python's sys.stdout, which need not be descriptor 1
-        streams = (sys.stdout, sys.stderr)
-        held = (io.StringIO(), io.StringIO())
+        tmp = tempfile.TemporaryFile()
+        out = sys.stdout
         try:
-            os.dup2(tmps[0].fileno(), 1)
-            os.dup2(tmps[1].fileno(), 2)
-            sys.stdout, sys.stderr = held
+            os.dup2(tmp.fileno(), 2)
+            if out is not None:
+                sys.stdout = _DropLibraryLines(out)
             yield
         finally:
-            sys.stdout, sys.stderr = streams
-            for st, h in zip(streams, held):
-                keep = [ln for ln in h.getvalue().splitlines(keepends=True)
-                        if not _EXR_NOISE.match(ln.encode("utf-8", "replace"))]
-                if keep and st is not None:
-                    try:
-                        st.write("".join(keep))
-                    except (OSError, ValueError):
-                        pass
+            if out is not None:
+                sys.stdout = out
             _flush_all()
-            for fd, (tmp, old) in enumerate(zip(tmps, saved), start=1):
-                os.dup2(old, fd)
-                os.close(old)
-                tmp.seek(0)
-                keep = [ln for ln in tmp.read().splitlines(keepends=True)
-                        if not _EXR_NOISE.match(ln)]
-                tmp.close()
-                if keep:
-                    try:
-                        os.write(fd, b"".join(keep))
-                    except OSError:
-                        pass
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            keep = [ln for ln in tmp.read().splitlines(keepends=True)
+                    if not _EXR_NOISE.match(ln)]
+            tmp.close()
+            if keep:
+                try:
+                    os.write(2, b"".join(keep))
+                except OSError:
+                    pass
 
 
 def _read_openexr(path: str, header: Header, by_part: dict) -> dict | None:
