@@ -1,5 +1,7 @@
-"""Low-level OpenEXR access through OpenImageIO (and the OpenEXR library's own binding for
-writing, where it is faster: see _write_openexr), numpy only (no torch import here).
+"""Low-level OpenEXR access through the OpenEXR library's own binding where it carries a
+file exactly (one decode pass per read, no mixed-type conversion per write: see
+_read_openexr, _write_openexr) and OpenImageIO for everything else; numpy only (no torch
+import here).
 
 Channels are always looked up by name (OpenEXR re-sorts them). Every part of a multi-part
 file is listed; data windows smaller than the display window are padded to the display
