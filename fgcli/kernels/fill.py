@@ -133,7 +133,10 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
                        o_to1, o_to0, o_depth, o_holes):
     """fill_extrap_holes: holes (valid False) take alpha * mv1(q) when frame 1's depth at
     the pixel nearest q + alpha * mv1(q) is background (else zero motion), and
-    to0 = to1 + mv1(nearest q + to1). Selects only (the row loop vectorises)."""
+    to0 = to1 + mv1(nearest q + to1).
+
+    Per row: every pixel as if it were valid (contiguous copies, vectorised), then the
+    holes, usually few, one by one (the rule's two gathers only where it applies)."""
     h, w = depth1.shape
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
@@ -141,8 +144,17 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
         yf = F32(y)
         for x in range(w):
-            xf = F32(x)
             ok = valid[y, x]
+            o_to1[0, y, x] = to1[0, y, x]
+            o_to1[1, y, x] = to1[1, y, x]
+            o_to0[0, y, x] = to0[0, y, x]
+            o_to0[1, y, x] = to0[1, y, x]
+            o_depth[y, x] = sdepth_b(depth_t[y, x])
+            o_holes[y, x] = not ok
+        for x in range(w):
+            if valid[y, x]:
+                continue
+            xf = F32(x)
             mx = smv_b(mv1[0, y, x]) * alpha
             my = smv_b(mv1[1, y, x]) * alpha
             sx = xf + mx
@@ -156,12 +168,10 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
             bg = inside & (not (ds < do * f1))
             vx = mx if bg else F32(0.0)
             vy = my if bg else F32(0.0)
-            dd = ds if bg else do
             jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
             jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
-            o_to1[0, y, x] = to1[0, y, x] if ok else vx
-            o_to1[1, y, x] = to1[1, y, x] if ok else vy
-            o_to0[0, y, x] = to0[0, y, x] if ok else vx + smv_b(mv1[0, jy, jx])
-            o_to0[1, y, x] = to0[1, y, x] if ok else vy + smv_b(mv1[1, jy, jx])
-            o_depth[y, x] = sdepth_b(depth_t[y, x]) if ok else dd
-            o_holes[y, x] = not ok
+            o_to1[0, y, x] = vx
+            o_to1[1, y, x] = vy
+            o_to0[0, y, x] = vx + smv_b(mv1[0, jy, jx])
+            o_to0[1, y, x] = vy + smv_b(mv1[1, jy, jx])
+            o_depth[y, x] = ds if bg else do

@@ -57,11 +57,14 @@ def dilate_nearest_depth(depth, mv, radius: int = 1):
             or radius < 0:
         return R.dilate_nearest_depth(depth, mv, radius)
     check_same(depth, "depth", (mv, "mv"))
-    from fgcli.kernels.splat import dilate_kernel
+    from fgcli.kernels.splat import dilate3_kernel, dilate_kernel
 
     h, w = depth.shape[-2:]
     d, m = _empty(1, h, w), _empty(2, h, w)
-    dilate_kernel(_a(depth)[0], _a(mv), radius, d.numpy()[0], m.numpy())
+    if radius == 1:  # the default (3x3): the tap-by-tap kernel
+        dilate3_kernel(_a(depth)[0], _a(mv), d.numpy()[0], m.numpy())
+    else:
+        dilate_kernel(_a(depth)[0], _a(mv), radius, d.numpy()[0], m.numpy())
     return d, m
 
 
@@ -301,6 +304,7 @@ def _inputs():
 # two groups of about equal compile time (~30 s each on the 2-core build machine)
 _GROUPS = (
     (lambda i: dilate_nearest_depth(i["d"], i["mv"]),
+     lambda i: dilate_nearest_depth(i["d"], i["mv"], 2),
      lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp", i["d"], 0.05),
      lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"]),
      lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None, 0.5,
@@ -324,7 +328,8 @@ def _cache_cold() -> bool:
     (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
     from fgcli.kernels import blend, fill, splat, warp
 
-    kernels = (splat.dilate_kernel, splat.splat_kernel, fill.gap_fill_kernel,
+    kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
+               fill.gap_fill_kernel,
                fill.extrap_fill_kernel, warp.warp_kernel, warp.mv_warp_kernel,
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel)
     try:

@@ -74,6 +74,68 @@ def dilate_kernel(depth, mv, r, dout, mvout):
 
 
 @njit(**INLINE)
+def _tap(d, k, best, code):
+    """One window tap of the 3x3 dilation: a strictly nearer depth takes the lead (taps in
+    row-major order, so among equal depths the first keeps it)."""
+    t = d < best
+    return (d if t else best), (k if t else code)
+
+
+@njit(**KERNEL)
+def dilate3_kernel(depth, mv, dout, mvout):
+    """dilate_kernel for r = 1, one pass per row: the window minimum taken tap by tap over
+    a rolling buffer of three sanitised, +inf-padded depth rows (nine selects per pixel,
+    the winner as a code 0..8; no index arrays), then the centre keeps ties and the vector
+    is gathered at the winner. Same result as the separable kernel (and the reference)."""
+    h, w = depth.shape
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        D = np.empty((3, w + 2), dtype=np.float32)
+        code = np.empty(w, dtype=np.int32)
+        best = np.empty(w, dtype=np.float32)
+        for r in range(ya - 1, yb + 1):
+            sl = (r + 3) % 3
+            D[sl, 0] = INF
+            D[sl, w + 1] = INF
+            rin = (r >= 0) & (r < h)
+            rr = min(max(r, 0), h - 1)
+            for x in range(w):
+                D[sl, x + 1] = sdepth_b(depth[rr, x]) if rin else INF
+            if r < ya + 1:
+                continue
+            y = r - 1
+            sa = (y + 2) % 3  # row y - 1
+            sb = y % 3
+            sc = (y + 1) % 3
+            for x in range(w):
+                b = INF
+                c = np.int32(4)
+                b, c = _tap(D[sa, x], np.int32(0), b, c)
+                b, c = _tap(D[sa, x + 1], np.int32(1), b, c)
+                b, c = _tap(D[sa, x + 2], np.int32(2), b, c)
+                b, c = _tap(D[sb, x], np.int32(3), b, c)
+                b, c = _tap(D[sb, x + 1], np.int32(4), b, c)
+                b, c = _tap(D[sb, x + 2], np.int32(5), b, c)
+                b, c = _tap(D[sc, x], np.int32(6), b, c)
+                b, c = _tap(D[sc, x + 1], np.int32(7), b, c)
+                b, c = _tap(D[sc, x + 2], np.int32(8), b, c)
+                dc = D[sb, x + 1]
+                t = b < dc  # the centre keeps ties
+                best[x] = b if t else dc
+                code[x] = c if t else np.int32(4)
+            for x in range(w):
+                k = np.int64(code[x])
+                q = (k * 11) >> 5  # k // 3 for k in 0..8, without a division
+                sy = y + q - 1
+                sx = x + (k - 3 * q) - 1
+                dout[y, x] = best[x]
+                mvout[0, y, x] = smv_b(mv[0, sy, sx])
+                mvout[1, y, x] = smv_b(mv[1, sy, sx])
+
+
+@njit(**INLINE)
 def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w, h):
     """Quadratic displacement p_t - p1 of source (x, y) with sanitised vector a: frame 0's
     vector b at the pixel nearest p1 + a (used only when p1 + a is inside, and with the
