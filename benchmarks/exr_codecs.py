@@ -70,7 +70,7 @@ def main():
                                  args.repeat)
             exr._openexr = binding
             mb = os.path.getsize(out) / 1e6
-            lossless = "yes" if comp in ("zip", "zips", "piz", "rle", "none") else "no"
+            lossless = "yes" if comp in ("zip", "zips", "piz", "rle", "none", "zstd") else "no"
             print(f"| {comp} | {res[True][0]:.0f} ({res[True][1]:.0f}) | "
                   f"{res[False][0]:.0f} ({res[False][1]:.0f}) | {mb:.2f} | {lossless} |")
     for fast, fn in paths.items():

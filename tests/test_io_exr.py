@@ -129,14 +129,14 @@ def test_failed_write_cleans_up(tmp_path):
 
 
 @pytest.mark.parametrize("comp", ["zip", "piz", "none", "rle", "zips", "pxr24", "b44",
-                                  "dwaa"])
+                                  "dwaa", "zstd"])
 def test_compressions(tmp_path, comp):
     (r,) = planes(n=1)
     p = str(tmp_path / "c.exr")
     exr.write_exr(p, {"R": r}, {"R": "float"}, compression=comp)
     assert exr.read_header(p).attributes["compression"].startswith(comp)
     got = exr.read_channels(p, [(0, "R")])[(0, "R")]
-    if comp in ("zip", "piz", "none", "rle", "zips"):
+    if comp in ("zip", "piz", "none", "rle", "zips", "zstd"):
         assert np.array_equal(got, r)  # lossless
     else:
         assert np.allclose(got, r, rtol=0.05, atol=0.05)
