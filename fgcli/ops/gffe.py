@@ -731,6 +731,32 @@ def push_pull_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     return out, torch.where(valid, depth, dd)
 
 
+def vector_rule_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor,
+                     mv: torch.Tensor, color1: torch.Tensor, depth1: torch.Tensor,
+                     mv1: torch.Tensor, alpha: float, depth_threshold_rel: float = 1e-3):
+    """Holes of the extrapolated frame filled by Mob-FGSR's extrapolation rule
+    (fgcli.ops.fill.extrap_hole_fill, shared with mob-fgsr) where it finds background: hole
+    q reads frame 1 at ``q + alpha * mv1(q)`` (behind the object that moved away from q)
+    when frame 1's depth there is not nearer than at q. An fgen fill for the holes GFFE's
+    background layers do not cover (no history yet, or a surface never seen): frame 1's
+    current shading beside the hole instead of a blur. The rule's other case (zero motion:
+    frame 1 at q, usually the occluder) is left to the next fill.
+
+    Args: color (3, H, W), valid (1, H, W) bool, depth (1, H, W), mv (2, H, W) of the
+    extrapolated frame; color1, depth1, mv1 frame 1's; alpha the extrapolation distance.
+    Returns (color, depth, mv toward frame 1, took (1, H, W) bool)."""
+    from fgcli.ops.fill import extrap_hole_fill
+
+    H, W = color.shape[-2:]
+    zero = torch.zeros(2, H, W, dtype=torch.float32, device=color.device)
+    to1, dep, _ = extrap_hole_fill(mv1, depth1, zero, valid, depth, alpha, depth_threshold_rel)
+    took = (~valid) & (to1 != 0).any(0, keepdim=True)  # the rule's background case
+    flow = torch.where(took, to1, zero)
+    smp, _ = backward_warp(sanitize_values(color1), flow, "bilinear")
+    return (torch.where(took, smp, color), torch.where(took, dep, depth),
+            torch.where(took, flow, mv), took)
+
+
 def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
                    depth1: torch.Tensor, cam1, cam_x, depth_tol: float = 0.05,
                    offscreen: str = "clamp", border: dict | None = None):

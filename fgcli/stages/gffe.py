@@ -334,7 +334,8 @@ class GffeHoleFill(Stage):
             "then reads frame 1 along that proxy surface where frame 1 sees it. Zero MVs in "
             "push-pull pixels. The count goes to ctx['holes'] (fgen eval: hole_fill_fraction).")
     inputs = ("color", "depth", "mv", "valid")
-    optional_inputs = ("color1", "depth1", "camera1", "camera_x", "window_border")
+    optional_inputs = ("color1", "depth1", "mv1", "alpha", "camera1", "camera_x",
+                       "window_border")
     outputs = ("color", "depth", "mv", "holes")
     options = (
         Option("far_bias", "float", 0.1, "pyramid levels average only pixels within this "
@@ -349,6 +350,10 @@ class GffeHoleFill(Stage):
         Option("border_splat", "bool", True, "with an overscan border (window stage on): "
                "splat the border's own fragments into the holes before the push-pull and "
                "the reprojection (GFFE's larger rendering window)"),
+        Option("vector_rule", "bool", True, "before the push-pull: holes take Mob-FGSR's "
+               "extrapolation rule where it finds background (frame 1 behind the object "
+               "that moved away along its vector; fgen, shared op; default since it won "
+               "on held-out random scenes, docs/results.md)"),
     )
 
     def needed(self, ctx, facts):
@@ -374,6 +379,12 @@ class GffeHoleFill(Stage):
             bc, bd, bm, bf = project_border(border, ctx["camera1"], ctx["camera_x"], ~v)
             color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
             mv0, v = torch.where(bf, bm, mv0), v | bf
+        if self.vector_rule and ctx.get("mv1") is not None and ctx.get("color1") is not None:
+            from fgcli.ops.gffe import vector_rule_fill
+
+            color, depth, mv0, took = vector_rule_fill(
+                color, v, depth, mv0, ctx["color1"], ctx["depth1"], ctx["mv1"], ctx["alpha"])
+            v = v | took
         c, d = push_pull_fill(color, v, depth, self.far_bias)
         mv = torch.where(v, mv0, torch.zeros_like(mv0))
         if self.mode == "reproject" and cams:
