@@ -480,3 +480,33 @@ def test_a_data_window_shifted_off_the_display_window_is_no_border(tmp_path, ove
         g = open_input(str(d)).read(1)
         assert (g.overscan is not None) == border, name
         assert g.color.shape[-2:] == (h, w)
+
+
+def test_vector_rule_fills_a_hole_from_behind_the_object_that_left_it():
+    """Mob-FGSR's extrapolation rule on gffe's holes: an object moving right leaves a hole
+    at its trailing edge; the hole reads frame 1 behind the object along its vector (the
+    background texture with today's shading). A hole whose vector leads onto something
+    nearer, or that has no vector, is left to the next fill."""
+    from fgcli.ops.gffe import vector_rule_fill
+
+    H, W = 6, 12
+    x = torch.arange(W, dtype=torch.float32).view(1, 1, W).expand(1, H, W)
+    color1 = torch.cat([x / 10, x / 20, torch.ones(1, H, W)])  # a horizontal ramp
+    depth1 = torch.full((1, H, W), 10.0)
+    depth1[..., 6:9] = 2.0  # the object, columns 6-8 in frame 1
+    depth1[..., 1] = 1.0    # something nearer at column 1
+    mv1 = torch.zeros(2, H, W)
+    mv1[0, :, 6:9] = -4.0  # the object moved 4 px right since frame 0 (prev = xy + mv)
+    mv1[0, :, 3] = -4.0    # column 3's vector leads onto column 1 (nearer)
+    valid = torch.ones(1, H, W, dtype=torch.bool)
+    for col in (6, 3, 10):  # trailing edge; vector onto a nearer surface; no vector
+        valid[..., col] = False
+    color, depth, mv = torch.zeros(3, H, W), torch.full((1, H, W), 5.0), torch.zeros(2, H, W)
+    c, d, m, took = vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, 0.5)
+    assert took[0, :, 6].all() and int(took.sum()) == H  # only the trailing edge
+    assert torch.equal(c[:, :, 6], color1[:, :, 4])  # read at 6 + 0.5 * -4 = 4
+    assert (d[0, :, 6] == 10.0).all() and (m[0, :, 6] == -2.0).all() and (m[1] == 0).all()
+    for col in (3, 10):  # untouched for the next fill
+        assert (c[:, :, col] == 0).all() and (d[0, :, col] == 5.0).all()
+        assert (m[:, :, col] == 0).all()
+    assert torch.equal(c[:, :, 0], color[:, :, 0])  # valid pixels untouched
