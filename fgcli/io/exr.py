@@ -989,8 +989,9 @@ def write_parts(path: str, parts: list[dict], compression: str = "zip",
         folder = os.path.dirname(os.path.abspath(path))
         tmp = _temp_in(folder, path)
         try:
-            with _library_output_captured():
-                written = _write_openexr(tmp, parts, compression, tile)
+            # not under _library_output_captured: its lock would make a write wait for a
+            # read (the library reports write failures as exceptions, printing nothing)
+            written = _write_openexr(tmp, parts, compression, tile)
         except Exception:  # noqa: BLE001 - OpenImageIO writes it (or reports why not)
             written = False
         except BaseException:
