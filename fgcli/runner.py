@@ -213,9 +213,10 @@ class FrameCache:
 
 
 class AsyncWriter:
-    """Writes frames on a background thread (EXR encode overlaps compute); at most
+    """Writes frames on background threads (EXR encode overlaps compute); at most
     `depth` writes pending; errors surface on the next submit or on close(). `threads`
-    writer threads (FGEN_WRITE_THREADS, default 1) write that many frames at once."""
+    writer threads (FGEN_WRITE_THREADS, default 2 on machines with two or more cores)
+    write that many frames at once."""
 
     def __init__(self, out, timings: Timings, depth: int = 2, threads: int = 1):
         from concurrent.futures import ThreadPoolExecutor
@@ -531,8 +532,12 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
         if on_frame is not None and k:
             on_frame(k)
 
+    # two frames encode at once where there are two cores: the encode (zip of float depth
+    # and vectors) is the longest per-frame task of a CPU run, ~2x the compute at 1080p
+    # (docs/performance.md: 0.97-1.02x -> 0.87-0.88x of the I/O floor on orbit)
     writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")),
-                         threads=int(os.environ.get("FGEN_WRITE_THREADS", "1")))
+                         threads=IOThreads._env("FGEN_WRITE_THREADS",
+                                                2 if _cpu_count() > 1 else 1))
     wkw = {"layout": out_layout, "half": half, "compression": compression}
     try:
         with torch.inference_mode():
