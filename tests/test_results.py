@@ -81,11 +81,11 @@ def test_gffe_vector_rule_and_throw(tmp_path):
     js = tmp_path / "throw-gffe.json"
     r = CliRunner().invoke(cli, ["eval", os.path.join(ROOT, "sample_data", "throw"),
                                  "--pipeline", "gffe-extrap,mob-fgsr", "--variant",
-                                 "gffe-extrap:hole_fill.vector_rule=false", "--mode", "extrap",
+                                 "gffe-extrap:vector_rule=off", "--mode", "extrap",
                                  "--json", str(js), "--no-progress", "--no-hdr-flip"])
     assert r.exit_code == 0, r.output
     res = json.loads(js.read_text())["pipelines"]
     g, m = res["gffe-extrap"], res["mob-fgsr"]
-    off = res["gffe-extrap:hole_fill.vector_rule=false"]
+    off = res["gffe-extrap:vector_rule=off"]
     assert g["psnr"] > m["psnr"] + 0.03 and g["psnr_disoccluded"] > m["psnr_disoccluded"] + 1
     assert g["psnr"] > off["psnr"] and g["psnr_disoccluded"] > off["psnr_disoccluded"] + 1

@@ -737,10 +737,11 @@ def vector_rule_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tens
     """Holes of the extrapolated frame filled by Mob-FGSR's extrapolation rule
     (fgcli.ops.fill.extrap_hole_fill, shared with mob-fgsr) where it finds background: hole
     q reads frame 1 at ``q + alpha * mv1(q)`` (behind the object that moved away from q)
-    when frame 1's depth there is not nearer than at q. An fgen fill for the holes GFFE's
-    background layers do not cover (no history yet, or a surface never seen): frame 1's
-    current shading beside the hole instead of a blur. The rule's other case (zero motion:
-    frame 1 at q, usually the occluder) is left to the next fill.
+    when frame 1's depth there is not nearer than at q. An fgen fill that runs before
+    GFFE's background projection (stage gffe_vector_rule): frame 1's current shading
+    where the rule finds background, the layers' older fragments (and the push-pull) for
+    the rest. The rule's other case (zero motion: frame 1 at q, usually the occluder) is
+    left to the next fill.
 
     Args: color (3, H, W), valid (1, H, W) bool, depth (1, H, W), mv (2, H, W) of the
     extrapolated frame; color1, depth1, mv1 frame 1's; alpha the extrapolation distance.

@@ -291,6 +291,37 @@ class GffeBackgroundCollect(Stage):
 
 
 @register
+class GffeVectorRule(Stage):
+    name = "gffe_vector_rule"
+    help = ("Holes of the warped frame first take Mob-FGSR's extrapolation rule where it "
+            "finds background: frame 1 behind the object that moved away, along the "
+            "pixel's vector (current shading; fgen, the op mob-fgsr uses). Before the "
+            "background layers, whose fragments may be frames old.")
+    inputs = ("color", "depth", "mv", "valid", "color1", "depth1", "mv1", "alpha")
+    outputs = ("color", "depth", "mv", "valid")
+    options = (Option("depth_threshold", "float", 1e-3, "relative depth margin of the "
+                      "rule's background test (mob-fgsr's extrap_fill)", range=(0.0, 1.0)),)
+
+    def needed(self, ctx, facts):
+        from fgcli.ops._util import reads_back
+
+        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
+            return False, "no holes in the warped frame"
+        return True, ""
+
+    def skip(self, ctx):
+        return {k: ctx[k] for k in self.outputs}
+
+    def run(self, ctx):
+        from fgcli.ops.gffe import vector_rule_fill
+
+        c, d, m, took = vector_rule_fill(ctx["color"], ctx["valid"], ctx["depth"], ctx["mv"],
+                                         ctx["color1"], ctx["depth1"], ctx["mv1"],
+                                         ctx["alpha"], self.depth_threshold)
+        return {"color": c, "depth": d, "mv": m, "valid": ctx["valid"] | took}
+
+
+@register
 class GffeBackgroundProject(Stage):
     name = "gffe_bg_project"
     help = ("GFFE background projection: the collected layers seen by the extrapolated "
@@ -334,8 +365,7 @@ class GffeHoleFill(Stage):
             "then reads frame 1 along that proxy surface where frame 1 sees it. Zero MVs in "
             "push-pull pixels. The count goes to ctx['holes'] (fgen eval: hole_fill_fraction).")
     inputs = ("color", "depth", "mv", "valid")
-    optional_inputs = ("color1", "depth1", "mv1", "alpha", "camera1", "camera_x",
-                       "window_border")
+    optional_inputs = ("color1", "depth1", "camera1", "camera_x", "window_border")
     outputs = ("color", "depth", "mv", "holes")
     options = (
         Option("far_bias", "float", 0.1, "pyramid levels average only pixels within this "
@@ -350,10 +380,6 @@ class GffeHoleFill(Stage):
         Option("border_splat", "bool", True, "with an overscan border (window stage on): "
                "splat the border's own fragments into the holes before the push-pull and "
                "the reprojection (GFFE's larger rendering window)"),
-        Option("vector_rule", "bool", True, "before the push-pull: holes take Mob-FGSR's "
-               "extrapolation rule where it finds background (frame 1 behind the object "
-               "that moved away along its vector; fgen, shared op; default since it won "
-               "on held-out random scenes, docs/results.md)"),
     )
 
     def needed(self, ctx, facts):
@@ -379,12 +405,6 @@ class GffeHoleFill(Stage):
             bc, bd, bm, bf = project_border(border, ctx["camera1"], ctx["camera_x"], ~v)
             color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
             mv0, v = torch.where(bf, bm, mv0), v | bf
-        if self.vector_rule and ctx.get("mv1") is not None and ctx.get("color1") is not None:
-            from fgcli.ops.gffe import vector_rule_fill
-
-            color, depth, mv0, took = vector_rule_fill(
-                color, v, depth, mv0, ctx["color1"], ctx["depth1"], ctx["mv1"], ctx["alpha"])
-            v = v | took
         c, d = push_pull_fill(color, v, depth, self.far_bias)
         mv = torch.where(v, mv0, torch.zeros_like(mv0))
         if self.mode == "reproject" and cams:
