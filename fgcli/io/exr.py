@@ -707,24 +707,37 @@ def _infer_type(value) -> str | None:
     return None
 
 
-def _set_attr(spec, key: str, value, typename: str | None = None) -> None:
-    oiio = _oiio()
-    if value is None:
-        return
+def _attr_plan(key: str, value, typename: str | None, *alt_keys: str):
+    """(type name, value) of an attribute as both writers write it: the given type, a
+    standard attribute's (under key or one of alt_keys), or one told from the value; nested
+    lists flattened, bools as ints. Type None: the value travels as JSON text (value is
+    then that text, or None when it has none)."""
     if isinstance(value, np.ndarray):
         value = value.tolist()
-    t = typename or STANDARD_TYPES.get(key) or _infer_type(value)
-    if t is None:  # anything else travels as JSON text
+    t = typename or next((STANDARD_TYPES[k] for k in (key, *alt_keys) if k in STANDARD_TYPES),
+                         None) or _infer_type(value)
+    if t is None:
         try:
-            spec.attribute(key, json.dumps(value))
+            return None, json.dumps(value)
         except (TypeError, ValueError):
-            pass
-        return
+            return None, None
     if isinstance(value, (list, tuple)) and value and all(isinstance(v, (list, tuple))
                                                           for v in value):
         value = [x for row in value for x in row]
     if isinstance(value, bool):
         value = int(value)
+    return t, value
+
+
+def _set_attr(spec, key: str, value, typename: str | None = None) -> None:
+    oiio = _oiio()
+    if value is None:
+        return
+    t, value = _attr_plan(key, value, typename)
+    if t is None:  # anything else travels as JSON text
+        if value is not None:
+            spec.attribute(key, value)
+        return
     try:
         if t in ("int", "float", "string") and not isinstance(value, (list, tuple)):
             value = {"int": int, "float": float, "string": str}[t](value)
@@ -866,20 +879,11 @@ def _exr_attr(key: str, value, typename: str | None):
     OpenImageIO; None to leave it out; _Unsupported for any other type."""
     if value is None or key in _OIIO_DERIVED:
         return None
-    key = _EXR_NAMES.get(key, key)
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    t = typename or STANDARD_TYPES.get(key) or _infer_type(value)
+    exr_key = _EXR_NAMES.get(key, key)
+    t, value = _attr_plan(key, value, typename, exr_key)
+    key = exr_key
     if t is None:
-        try:
-            return key, json.dumps(value)
-        except (TypeError, ValueError):
-            return None
-    if isinstance(value, (list, tuple)) and value and all(isinstance(v, (list, tuple))
-                                                          for v in value):
-        value = [x for row in value for x in row]
-    if isinstance(value, bool):
-        value = int(value)
+        return None if value is None else (key, value)
     try:
         if t == "int" and not isinstance(value, (list, tuple)):
             return key, int(value)

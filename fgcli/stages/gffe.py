@@ -290,17 +290,9 @@ class GffeBackgroundCollect(Stage):
         return {"bg": bg}
 
 
-@register
-class GffeVectorRule(Stage):
-    name = "gffe_vector_rule"
-    help = ("Holes of the warped frame first take Mob-FGSR's extrapolation rule where it "
-            "finds background: frame 1 behind the object that moved away, along the "
-            "pixel's vector (current shading; fgen, the op mob-fgsr uses). Before the "
-            "background layers, whose fragments may be frames old.")
-    inputs = ("color", "depth", "mv", "valid", "color1", "depth1", "mv1", "alpha")
-    outputs = ("color", "depth", "mv", "valid")
-    options = (Option("depth_threshold", "float", 1e-3, "relative depth margin of the "
-                      "rule's background test (mob-fgsr's extrap_fill)", range=(0.0, 1.0)),)
+class _HoleStage(Stage):
+    """A stage that fills holes of the warped frame (ctx["valid"] False): nothing to do
+    without holes; skipped, it passes its outputs through."""
 
     def needed(self, ctx, facts):
         from fgcli.ops._util import reads_back
@@ -311,6 +303,19 @@ class GffeVectorRule(Stage):
 
     def skip(self, ctx):
         return {k: ctx[k] for k in self.outputs}
+
+
+@register
+class GffeVectorRule(_HoleStage):
+    name = "gffe_vector_rule"
+    help = ("Holes of the warped frame first take Mob-FGSR's extrapolation rule where it "
+            "finds background: frame 1 behind the object that moved away, along the "
+            "pixel's vector (current shading; fgen, the op mob-fgsr uses). Before the "
+            "background layers, whose fragments may be frames old.")
+    inputs = ("color", "depth", "mv", "valid", "color1", "depth1", "mv1", "alpha")
+    outputs = ("color", "depth", "mv", "valid")
+    options = (Option("depth_threshold", "float", 1e-3, "relative depth margin of the "
+                      "rule's background test (mob-fgsr's extrap_fill)", range=(0.0, 1.0)),)
 
     def run(self, ctx):
         from fgcli.ops.gffe import vector_rule_fill
@@ -322,7 +327,7 @@ class GffeVectorRule(Stage):
 
 
 @register
-class GffeBackgroundProject(Stage):
+class GffeBackgroundProject(_HoleStage):
     name = "gffe_bg_project"
     help = ("GFFE background projection: the collected layers seen by the extrapolated "
             "camera fill only the holes of the warped frame.")
@@ -332,16 +337,9 @@ class GffeBackgroundProject(Stage):
     options = ()
 
     def needed(self, ctx, facts):
-        from fgcli.ops._util import reads_back
-
         if ctx.get("bg") is None:
             return False, "no background collected"
-        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
-            return False, "no holes in the warped frame"
-        return True, ""
-
-    def skip(self, ctx):
-        return {k: ctx[k] for k in self.outputs}
+        return super().needed(ctx, facts)
 
     def run(self, ctx):
         import torch
