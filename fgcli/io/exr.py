@@ -605,11 +605,16 @@ def _library_output_captured():
     with _CAPTURE_LOCK:
         try:
             _flush_all()
+            tmp = tempfile.TemporaryFile()
+        except (OSError, ValueError, AttributeError):
+            yield  # nowhere to hold the lines (no writable temporary folder): as is
+            return
+        try:
             saved = os.dup(2)
         except (OSError, ValueError, AttributeError):
+            tmp.close()
             yield  # no file descriptor to capture (an embedding host): as is
             return
-        tmp = tempfile.TemporaryFile()
         out = sys.stdout
         try:
             os.dup2(tmp.fileno(), 2)
