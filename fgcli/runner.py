@@ -263,11 +263,10 @@ class IOThreads:
     running beside the compute, a 2-core machine then runs 4-6 busy threads on 2 cores and
     every one slows the others (measured per frame at 1080p on 2 cores: compute 965 ms
     instead of 380, read 970, write 1110). While the I/O threads run:
-    - limit_io(): OpenImageIO (and the OpenEXR writer) use `FGEN_OIIO_THREADS` threads per
+    - limit_io(): OpenImageIO and the OpenEXR binding use `FGEN_OIIO_THREADS` threads per
       file (default 1: the reader and the writer already run beside each other and the
-      compute; with
-      --device cuda the compute leaves the cores free, and OpenImageIO keeps its default
-      of one thread per core);
+      compute; with --device cuda the compute leaves the cores free, and both keep their
+      default of one thread per core);
     - limit_compute(): the compute uses at most `FGEN_COMPUTE_THREADS` threads (default:
       the cores less one, at least 1), never more than it was set to (an executor's
       per-worker setting stays).
@@ -296,7 +295,7 @@ class IOThreads:
         for k in ("threads", "exr_threads"):
             self.saved.setdefault(("oiio", k), oiio.get_int_attribute(k, 0))
             oiio.attribute(k, n)
-        was = exr.exr_threads()  # the OpenEXR writer (fgcli.io.exr) alike
+        was = exr.exr_threads()  # the OpenEXR binding (fgcli.io.exr) alike
         if was is not None:
             self.saved.setdefault("openexr", was)
             exr.set_exr_threads(n)

@@ -668,7 +668,7 @@ def _read_openexr(path: str, header: Header, by_part: dict) -> dict | None:
             if not isinstance(a, np.ndarray) or a.shape != (p.data_height, p.data_width) \
                     or a.dtype not in (np.float16, np.float32):
                 return None  # subsampled or integer channels: OpenImageIO's path
-            got[(part_idx, n)] = a.astype(np.float32)  # half and uint widen exactly
+            got[(part_idx, n)] = a.astype(np.float32)  # half widens exactly; an own copy
     return got
 
 
@@ -863,13 +863,13 @@ def _openexr():
 
 
 def exr_threads() -> int | None:
-    """Threads the OpenEXR writer uses per file (None without the binding)."""
+    """Threads the OpenEXR binding uses per file, reading or writing (None without it)."""
     exr = _openexr()
     return None if exr is None else max(1, exr.global_thread_count())
 
 
 def set_exr_threads(n: int) -> None:
-    """n threads per file for the OpenEXR writer (1: the calling thread alone)."""
+    """n threads per file for the OpenEXR binding (1: the calling thread alone)."""
     exr = _openexr()
     if exr is not None:
         exr.set_global_thread_count(0 if n <= 1 else int(n))
@@ -910,13 +910,14 @@ def _exr_attr(key: str, value, typename: str | None):
     raise _Unsupported(key)
 
 
-def _write_openexr(tmp: str, parts: list[dict], compression: str,
-                   tile: int | None) -> bool:
-    """Write the parts with the OpenEXR binding; False (nothing written) when the binding
-    is missing or something is not carried exactly (then OpenImageIO writes the file)."""
+def _write_openexr(tmp: str, parts: list[dict], compression: str) -> bool:
+    """Write scanline parts with the OpenEXR binding (write_parts has checked that it is
+    installed and knows the compression's name); False (nothing written) when this binding
+    lacks the compression or something is not carried exactly (then OpenImageIO writes
+    the file)."""
     exr = _openexr()
-    comp = _EXR_COMPRESSION.get(compression)
-    if exr is None or comp is None or tile or not hasattr(exr, comp):
+    comp = _EXR_COMPRESSION[compression]
+    if not hasattr(exr, comp):
         return False
     if len({tuple(p.get("display") or np.asarray(next(iter(p["channels"].values()))).shape[::-1])
             for p in parts}) > 1:
@@ -1000,7 +1001,7 @@ def write_parts(path: str, parts: list[dict], compression: str = "zip",
         try:
             # not under _library_output_captured: its lock would make a write wait for a
             # read (the library reports write failures as exceptions, printing nothing)
-            written = _write_openexr(tmp, parts, compression, tile)
+            written = _write_openexr(tmp, parts, compression)
         except Exception:  # noqa: BLE001 - OpenImageIO writes it (or reports why not)
             written = False
         except BaseException:
