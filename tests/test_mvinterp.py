@@ -333,3 +333,24 @@ def test_hole_weight_reweights_the_charbonnier_term(tiny_data):
         b["cue"][:, 1, :4] = 1.0  # holes where the error is large
         b["gt"][:, :, :4] += 0.5
         assert weighted.loss(model, b)["charbonnier"] > plain.loss(model, b)["charbonnier"]
+
+
+def test_occlusion_weight_reweights_different_surface_pixels(tiny_data):
+    """--occlusion-weight: pixels whose guided samples are different surfaces (|depth cue|
+    >= OCCLUSION_CUE) weigh more; with none in the batch the loss is the plain one."""
+    from fgcli.nets.mvinterp_train import OCCLUSION_CUE, MVInterpTask
+
+    plain = _task(tiny_data)
+    weighted = MVInterpTask(str(tiny_data / "train"), str(tiny_data / "val"), patch=32,
+                            batch=2, occlusion_weight=4.0)
+    assert weighted.config()["occlusion_weight"] == 4.0
+    assert "occlusion_weight" not in plain.config()
+    b = plain.batch(0, 0)
+    model = plain.model
+    with torch.no_grad():
+        b["cue"][:, 0] = 0.5 * OCCLUSION_CUE  # same surface everywhere
+        assert torch.allclose(plain.loss(model, b)["charbonnier"],
+                              weighted.loss(model, b)["charbonnier"], rtol=1e-5)
+        b["cue"][:, 0, :4] = -OCCLUSION_CUE  # different surfaces where the error is large
+        b["gt"][:, :, :4] += 0.5
+        assert weighted.loss(model, b)["charbonnier"] > plain.loss(model, b)["charbonnier"]

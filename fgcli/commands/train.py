@@ -52,6 +52,11 @@ def _widths(ctx, param, value):
 @click.option("--hole-weight", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Extra Charbonnier weight on guide-hole pixels (the splat left them "
                    "empty: the network alone chooses the frame there); 0 = plain mean.")
+@click.option("--occlusion-weight", type=click.FloatRange(min=0), default=0.0,
+              show_default=True,
+              help="Extra Charbonnier weight where the two guided samples are different "
+                   "surfaces (depths differ by 22 %% or more: one is an occluder and the "
+                   "merge mask alone picks the frame); 0 = plain mean.")
 @click.option("--init", type=click.Path(dir_okay=False, exists=True),
               help="Start a new run from this checkpoint's weights (fine-tuning).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -61,7 +66,7 @@ def _widths(ctx, param, value):
                    "(the shipped weights live in fgcli/nets/weights/).")
 @click.option("--no-progress", is_flag=True)
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
-        no_guides, name, light_scenes, hole_weight, init, seed, threads, export_dir,
+        no_guides, name, light_scenes, hole_weight, occlusion_weight, init, seed, threads, export_dir,
         no_progress):
     """Train NETWORK on data rendered from random scenes (never the evaluation scenes).
 
@@ -96,7 +101,8 @@ def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch,
 
     task = MVInterpTask(tr, va, widths=widths, patch=patch, batch=batch, limit=scenes,
                         val_limit=val_scenes, seed=seed, guides=not no_guides,
-                        extra_dirs=extra, hole_weight=hole_weight)
+                        extra_dirs=extra, hole_weight=hole_weight,
+                        occlusion_weight=occlusion_weight)
     res = train(task, run_dir, steps, lr=lr, seed=seed, progress=not no_progress,
                 log=lambda m: click.echo(m, err=True), init=init)
     click.echo(f"trained {res['steps']} steps in {res['seconds']:.0f} s; best validation "

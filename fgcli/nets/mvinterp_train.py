@@ -33,6 +33,11 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return 10.0 * np.log10(1.0 / max(mse, 1e-10))
 
 
+# |depth-ratio cue| from which the guided samples count as different surfaces: the cue is
+# log(z0 / z1) / 2 clamped to +-1, so 0.1 is a 22 % depth difference
+OCCLUSION_CUE = 0.1
+
+
 class MVInterpTask:
     name = "mv-interp"
     loss_terms = ("charbonnier", "census")
@@ -40,7 +45,8 @@ class MVInterpTask:
 
     def __init__(self, train_dir: str, val_dir: str, widths=None, patch: int = 128,
                  batch: int = 8, limit: int | None = None, val_limit: int | None = None,
-                 seed: int = 0, guides: bool = True, extra_dirs=(), hole_weight: float = 0.0):
+                 seed: int = 0, guides: bool = True, extra_dirs=(), hole_weight: float = 0.0,
+                 occlusion_weight: float = 0.0):
         from fgcli.nets.mvinterp import DEFAULT_WIDTHS, MVInterpNet
 
         self.widths = tuple(widths or DEFAULT_WIDTHS)
@@ -52,6 +58,10 @@ class MVInterpTask:
         # the guiding flows carry no information and the network alone must choose the
         # frame); rare pixels, so a plain mean barely sees them
         self.hole_weight = float(hole_weight)
+        # extra Charbonnier weight where the two guided samples are different surfaces
+        # (|depth-ratio cue| >= OCCLUSION_CUE: one of them is an occluder, so the merge mask
+        # alone decides which frame is right there; Mob-FGSR's Eq. 1 takes one frame exactly)
+        self.occlusion_weight = float(occlusion_weight)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)  # the initial weights depend on the seed only
             self.model = MVInterpNet(self.widths)
@@ -67,6 +77,8 @@ class MVInterpTask:
                 "samples": self.n_train, "augment": "flip,reverse",
                 **({} if self.guides else {"guides": False}),
                 **({"hole_weight": self.hole_weight} if self.hole_weight else {}),
+                **({"occlusion_weight": self.occlusion_weight} if self.occlusion_weight
+                   else {}),
                 **({"extra": self.extra} if self.extra else {})}
 
     def batch(self, seed: int, step: int) -> dict:
@@ -120,8 +132,9 @@ class MVInterpTask:
 
         out = model(b["c0"], b["c1"], b["g0"], b["g1"], b["cue"], b["t"])[0]
         y, g = tonemap(out), tonemap(b["gt"])
-        if self.hole_weight:
-            w = 1.0 + self.hole_weight * (b["cue"][:, 1:2] > 0.5).to(y.dtype)
+        if self.hole_weight or self.occlusion_weight:
+            w = (1.0 + self.hole_weight * (b["cue"][:, 1:2] > 0.5).to(y.dtype)
+                 + self.occlusion_weight * (b["cue"][:, 0:1].abs() >= OCCLUSION_CUE).to(y.dtype))
             ch = (torch.sqrt((y - g) ** 2 + 1e-6) * w).sum() / (w.sum() * y.shape[1])
             return {"charbonnier": ch, "census": census(y, g)}
         return {"charbonnier": charbonnier(y, g), "census": census(y, g)}
