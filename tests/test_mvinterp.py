@@ -354,3 +354,43 @@ def test_occlusion_weight_reweights_different_surface_pixels(tiny_data):
         b["cue"][:, 0, :4] = -OCCLUSION_CUE  # different surfaces where the error is large
         b["gt"][:, :, :4] += 0.5
         assert weighted.loss(model, b)["charbonnier"] > plain.loss(model, b)["charbonnier"]
+
+
+@pytest.mark.parametrize("with_mv0", [False, True])
+def test_holes_the_dilation_made_take_frame_1s_own_vectors(with_mv0):
+    """A static background pixel beside a moving nearer object is dilated to the object's
+    vector and splats away with it, leaving its own place at t empty. undilated=True gives
+    that hole frame 1's own (zero) vector and clears it; the real disocclusion next to it
+    stays a hole with the fallback vector. Same on the numba path."""
+    from fgcli.kernels import ops as K
+    from fgcli.ops.mvinterp import guiding_flows
+
+    H, W = 6, 20
+    d1 = torch.full((1, H, W), 10.0)
+    m1 = torch.zeros(2, H, W)
+    d1[:, :, 8:11] = 5.0
+    m1[0, :, 8:11] = 4.0  # frame-1 pixel q was at q + 4 in frame 0
+    mv0 = d0 = None
+    if with_mv0:
+        # frame 0: the object at columns 12-14, and another near surface over column 7
+        d0 = torch.full((1, H, W), 10.0)
+        mv0 = torch.zeros(2, H, W)
+        d0[:, :, 12:15] = 5.0
+        mv0[0, :, 12:15] = 4.0
+        d0[:, :, 6:8] = 4.0
+        mv0[0, :, 6:8] = -6.0
+    old = guiding_flows(d1, m1, 0.5, mv0, d0, undilated=False)
+    new = guiding_flows(d1, m1, 0.5, mv0, d0)
+    assert bool(old[2][0, :, 7].all()) and bool(old[2][0, :, 8].all())
+    assert not bool(new[2][0, :, 7].any()) and bool(new[2][0, :, 8].all())
+    assert torch.equal(new[0][:, :, 7], torch.zeros(2, H)) and torch.equal(new[1][:, :, 7], torch.zeros(2, H))
+    if with_mv0:
+        assert float(old[0][0, 2, 7]) == -3.0  # frame 0's occluder vector: wrong here
+    keep = torch.ones(1, H, W, dtype=torch.bool)
+    keep[:, :, 7] = False
+    for a, b in zip(old, new):  # nothing else changes
+        assert torch.equal(torch.where(keep, a, torch.zeros_like(a)) if a.dtype != torch.bool
+                           else a & keep, torch.where(keep, b, torch.zeros_like(b))
+                           if b.dtype != torch.bool else b & keep)
+    for a, b in zip(new, K.guiding_flows(d1, m1, 0.5, mv0, d0)):
+        assert torch.equal(a, b)

@@ -272,15 +272,15 @@ def crossfade(color0, color1, depth0, depth1, mv1, alpha, mv_scale):
 # ----------------------------------------------------------------------------- mv-interp
 
 
-def guiding_flows(depth1, mv1, alpha, mv0=None, depth0=None):
+def guiding_flows(depth1, mv1, alpha, mv0=None, depth0=None, undilated=True):
     """fgcli.ops.mvinterp.guiding_flows with the dilation, splat and gap fill kernels (the
     same chain, so the same result)."""
     from fgcli.ops import mvinterp as MI
 
     if not _cpu(depth1, mv1, mv0, depth0):
-        return MI.guiding_flows(depth1, mv1, alpha, mv0, depth0)
+        return MI.guiding_flows(depth1, mv1, alpha, mv0, depth0, undilated)
     return MI.guiding_chain(dilate_nearest_depth, splat_motion, gap_fill, depth1, mv1, alpha,
-                            mv0, depth0)
+                            mv0, depth0, undilated)
 
 
 # ----------------------------------------------------------------------------- start-up

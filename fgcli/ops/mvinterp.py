@@ -11,6 +11,14 @@ vector there belongs to the occluder, while frame 0's is the surface's own. With
 0's vectors (the first frame of a sequence, forward-only files) it falls back to the
 paper's rule (linear, holes from frame 1's vector).
 
+Holes the dilation made (fgen extension, ``undilated=True``): the 3x3 nearest-depth
+dilation gives a background pixel beside a nearer surface that surface's vector, so the
+pixel splats away with it and its own place at time t can be left empty although frame 1
+sees a surface that lands exactly there (a static floor beside a moving object). Such a
+hole is not a disocclusion. Before the hole fallback, holes therefore take the vectors of
+the undilated splat (frame 1's own vectors and depths, the same splat and depth test)
+where it reached them; only the rest take frame 0's vectors.
+
 Cue channels (fgen extension): the network also sees, per pixel, the log ratio of the two
 frames' depths at the guided sample positions (Eq. 1 of Mob-FGSR decides by exactly this:
 same surface or not, which is farther) and the hole mask; depth is in every G-buffer the
@@ -35,34 +43,51 @@ CUE_LOG_RANGE = 2.0  # depth log ratios are clamped to +-2 (a factor of e^2 = 7.
 
 
 def guiding_flows(depth1: torch.Tensor, mv1: torch.Tensor, alpha: float,
-                  mv0: torch.Tensor | None = None, depth0: torch.Tensor | None = None):
+                  mv0: torch.Tensor | None = None, depth0: torch.Tensor | None = None,
+                  undilated: bool = True):
     """Bilateral guiding flows (to0, to1) at interpolation time alpha and the hole mask.
 
     Args:
         depth1: (1, H, W) frame-1 depth (+inf sky); mv1: (2, H, W) frame-1 vectors toward
             frame 0 (pixels). mv0, depth0: frame 0's vectors (toward frame -1) and depth,
             or None. alpha: time in [0, 1] (0 = frame 0).
+        undilated: holes of the dilated splat take the undilated splat's vectors where it
+            reached them (module docstring), before the hole fallback.
     Returns:
         to0, to1: (2, H, W): sample frame 0 at ``q + to0`` and frame 1 at ``q + to1``.
         holes: (1, H, W) bool, pixels no splat or gap fill reached.
     """
     return guiding_chain(dilate_nearest_depth, splat_motion, gap_fill, depth1, mv1, alpha,
-                         mv0, depth0)
+                         mv0, depth0, undilated)
 
 
-def guiding_chain(dilate, splat, fill, depth1, mv1, alpha, mv0=None, depth0=None):
+def guiding_chain(dilate, splat, fill, depth1, mv1, alpha, mv0=None, depth0=None,
+                  undilated: bool = True):
     """guiding_flows with the three motion ops given (these torch ops, or the numba
     kernels of fgcli.kernels.ops: the same chain either way)."""
+    from fgcli.ops._util import reads_back
+
     a = check_alpha(alpha)
     check_tensor(depth1, "depth1", 1, allow_batch=False)
     check_tensor(mv1, "mv1", 2, allow_batch=False)
+
+    def splat1(d, m):
+        if mv0 is not None:
+            return splat(d, m, mv0, a, model="quadratic", mode="interp", depth0=depth0)
+        return splat(d, m, None, a, model="linear", mode="interp")
+
     d1, m1 = dilate(depth1, mv1, 1)
+    r = splat1(d1, m1)
     if mv0 is not None:
-        r = splat(d1, m1, mv0, a, model="quadratic", mode="interp", depth0=depth0)
         r = fill(r, 0.01, "nearest", mv0, depth0 if depth0 is not None else depth1)
     else:
-        r = splat(d1, m1, None, a, model="linear", mode="interp")
         r = fill(r, 0.01, "nearest", sanitize_mv(mv1), depth1)
+    if undilated and (not reads_back(r.holes) or bool(r.holes.any())):
+        # holes the dilation made: frame 1's own (undilated) splat reaches them
+        u = splat1(sanitize_depth(depth1), sanitize_mv(mv1))
+        take = r.holes & u.valid
+        return (torch.where(take, u.to0, r.to0), torch.where(take, u.to1, r.to1),
+                r.holes & ~take)
     return r.to0, r.to1, r.holes.clone()
 
 

@@ -16,6 +16,12 @@ class Guide(Stage):
     inputs = ("depth1", "mv1", "alpha")
     optional_inputs = ("mv0", "depth0")
     outputs = ("guide0", "guide1", "guide_cue")
+    options = (
+        Option("undilated_holes", "bool", True, "holes of the dilated splat take frame 1's "
+               "own (undilated) splat where it reaches them, before the hole fallback: the "
+               "dilation leaves a static surface beside a moving one empty at time t although "
+               "frame 1 sees it there (fgen extension; figures in docs/results.md)"),
+    )
 
     def needed(self, ctx, facts):
         if not facts["any_motion"]:
@@ -46,7 +52,8 @@ class Guide(Stage):
 
         mv0 = ctx.get("mv0")
         g0, g1, holes = op("guiding_flows", ctx)(ctx["depth1"], ctx["mv1"], ctx["alpha"], mv0,
-                                      ctx.get("depth0") if mv0 is not None else None)
+                                                 ctx.get("depth0") if mv0 is not None else None,
+                                                 self.undilated_holes)
         return {"guide0": g0, "guide1": g1, "guide_cue": self._cue(ctx, g0, g1, holes)}
 
 
