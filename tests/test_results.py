@@ -59,6 +59,11 @@ def test_mv_interp_network_beats_its_warp_and_mob_fgsr(tmp_path, scene):
     res = _eval(tmp_path, scene, "interp", "mv-interp,mv-interp:network=off,mob-fgsr")
     assert res["mv-interp"]["psnr"] > res["mv-interp:network=off"]["psnr"] + 1.0
     assert res["mv-interp"]["psnr"] > res["mob-fgsr"]["psnr"] + 0.5
+    # and on the disoccluded pixels (margins 0.44 blade, 1.45 throw, 2.50 orbit dB; the
+    # disoccluded set is a few hundred pixels per frame; float differences between CPUs'
+    # kernels move it by thousandths of a dB, far below the 0.2 dB asked)
+    for other in ("mv-interp:network=off", "mob-fgsr"):
+        assert res["mv-interp"]["psnr_disoccluded"] > res[other]["psnr_disoccluded"] + 0.2
 
 
 def test_mv_interp_moves_the_shading_on_the_moving_light_scene(tmp_path):
