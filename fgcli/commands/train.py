@@ -66,8 +66,8 @@ def _widths(ctx, param, value):
                    "(the shipped weights live in fgcli/nets/weights/).")
 @click.option("--no-progress", is_flag=True)
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
-        no_guides, name, light_scenes, hole_weight, occlusion_weight, init, seed, threads, export_dir,
-        no_progress):
+        no_guides, name, light_scenes, hole_weight, occlusion_weight, init, seed, threads,
+        export_dir, no_progress):
     """Train NETWORK on data rendered from random scenes (never the evaluation scenes).
 
     \b

@@ -30,7 +30,8 @@ import math
 
 import torch
 
-from fgcli.ops._util import check_alpha, check_tensor, sanitize_depth, sanitize_mv
+from fgcli.ops._util import (check_alpha, check_tensor, reads_back, sanitize_depth,
+                              sanitize_mv)
 from fgcli.ops.fill import gap_fill
 from fgcli.ops.splat import dilate_nearest_depth, splat_motion
 from fgcli.ops.warp import sample_nearest
@@ -55,7 +56,8 @@ def guiding_flows(depth1: torch.Tensor, mv1: torch.Tensor, alpha: float,
             reached them (module docstring), before the hole fallback.
     Returns:
         to0, to1: (2, H, W): sample frame 0 at ``q + to0`` and frame 1 at ``q + to1``.
-        holes: (1, H, W) bool, pixels no splat or gap fill reached.
+        holes: (1, H, W) bool, pixels no splat or gap fill reached (nor, with undilated,
+            the undilated splat).
     """
     return guiding_chain(dilate_nearest_depth, splat_motion, gap_fill, depth1, mv1, alpha,
                          mv0, depth0, undilated)
@@ -65,8 +67,6 @@ def guiding_chain(dilate, splat, fill, depth1, mv1, alpha, mv0=None, depth0=None
                   undilated: bool = True):
     """guiding_flows with the three motion ops given (these torch ops, or the numba
     kernels of fgcli.kernels.ops: the same chain either way)."""
-    from fgcli.ops._util import reads_back
-
     a = check_alpha(alpha)
     check_tensor(depth1, "depth1", 1, allow_batch=False)
     check_tensor(mv1, "mv1", 2, allow_batch=False)
