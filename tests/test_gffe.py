@@ -116,6 +116,56 @@ def test_moving_object_is_dynamic_and_its_trajectory_is_its_previous_position():
                           atol=1e-3)
 
 
+@pytest.mark.parametrize("shift", [0, 3])
+def test_silhouette_pixel_history_reads_its_own_surface_not_the_one_behind(shift):
+    """A moving object's edge pixel whose vector ends just off the object in frame 0 (x'
+    lands on the wall behind it): the nearest-pixel lookup (the paper) reads the wall's
+    depth and the pixel lags behind its object; lookup=match reads the object's depth from
+    a 3x3 neighbour, or, when none of them shows it (shift=3: the object sits further
+    away in frame 0), keeps the pixel's current depth at x' (screen-space motion)."""
+    cam = cam_at(0.0)
+    d1 = torch.full((1, H, W), 2 * D)
+    d1[0, 8:16, 12:20] = D  # the object now
+    d0 = torch.full((1, H, W), 2 * D)
+    d0[0, 8:16, 10 + shift:18 + shift] = D  # frame 0: object 3.6 px to the left (shift 0)
+    mv = torch.zeros(2, H, W)
+    mv[0, 8:16, 12:20] = -3.6  # pixel 12 (centre 12.5) came from x' = 8.9: the wall pixel 8
+    want = 12.5 + 3.6  # alpha 1: one more step of 3.6 px
+    for lookup, ok in (("match", True), ("nearest", False)):
+        traj, dyn = track_history(d1, mv, cam, cam, d0, k=2, lookup=lookup)
+        assert dyn[0, 8:16, 12:20].all()
+        px, _, _, _ = project(estimate_positions(traj, 1.0), cam, (H, W))
+        err = (px[8:16, 12] - want).abs()
+        if ok:
+            assert float(err.max()) < 1e-2
+            # the object's inner pixels, whose x' lies on it, are the same either way
+            assert torch.allclose(px[8:16, 13:20], (torch.arange(13, 20) + 0.5 + 3.6)
+                                  .expand(8, 7), atol=1e-2)
+        else:
+            assert float(err.min()) > 0.5  # the paper's lookup: the edge pixel lags
+
+
+def test_full_dilation_moves_an_edge_pixel_with_its_object():
+    """position.dilate=full: a background-depth pixel beside a moving object takes the
+    object's depth and motion (Mob-FGSR's dilation in world space); a pixel with no nearer
+    neighbour keeps its own position and trajectory."""
+    from fgcli.ops.gffe import dilate_trajectory
+
+    cam = cam_at(0.0)
+    d = torch.full((1, H, W), 2 * D)
+    d[0, 8:16, 8:16] = D
+    mv = torch.zeros(2, H, W)
+    mv[0, 8:16, 8:16] = -2.0
+    traj, _ = track_history(d, mv, cam, cam, d.roll(-2, -1), k=2)
+    out = dilate_trajectory(traj, d, cam)
+    px, _, dep, _ = project(estimate_positions(out, 1.0), cam, (H, W))
+    assert abs(float(px[10, 16]) - (16.5 + 2.0)) < 1e-2  # the edge pixel moved with it
+    assert abs(float(dep[10, 16]) - D) < 1e-3
+    assert torch.equal(out[:, :, :, 20:], traj[:, :, :, 20:])  # far from the object
+    assert torch.allclose(px[8:16, 8:16], (torch.arange(8, 16) + 0.5 + 2.0).expand(8, 8),
+                          atol=1e-2)
+
+
 def test_quadratic_positions_are_exact_for_constant_acceleration():
     p = lambda t: torch.tensor([t * t, 2.0 * t, 0.0, 1.0]).view(4, 1, 1)  # noqa: E731
     traj = torch.stack([p(0.0), p(-1.0), p(-2.0)])

@@ -62,6 +62,13 @@ class GffeHistory(Stage):
         Option("first_frame", "choice", "mv", "empty history (first frame, after a cut): "
                "static (the paper) or mv (screen-space motion from the frame's vectors, fgen)",
                choices=("mv", "static")),
+        Option("lookup", "choice", "match", "where x' (the vector's previous position) "
+               "falls: nearest (the pixel containing x', the paper) or match (fgen: of the "
+               "3x3 pixels around x', the one whose depth is nearest the pixel's current "
+               "depth; none within match_tol: the surface was at x' at its current depth)",
+               choices=("match", "nearest")),
+        Option("match_tol", "float", 0.1, "lookup=match: relative depth difference above "
+               "which no neighbour of x' counts as the same surface", range=(0.0, 1e6)),
     )
     history = None  # the trajectories carry over every earlier rendered frame
 
@@ -98,7 +105,8 @@ class GffeHistory(Stage):
         if ctx.get("depth0") is None and prev is None:
             cam0 = None
         traj, dyn = track_history(d1, ctx["mv1"], ctx["camera1"], cam0, ctx.get("depth0"),
-                                  prev, self.k, self.threshold, self.first_frame)
+                                  prev, self.k, self.threshold, self.first_frame,
+                                  self.lookup, self.match_tol)
         s.update(hist_frame=_frame_id(ctx), traj=traj, dynamic=dyn, hist_camera=ctx["camera1"])
         return {"traj": traj, "dynamic": dyn}
 
@@ -183,10 +191,14 @@ class GffePosition(Stage):
     help = ("GFFE Eq. 1: next world position NP = alpha (P0 - P1) + P0 (linear in world "
             "space); motion=quadratic: the higher-order ablation of the paper.")
     inputs = ("traj", "alpha")
-    optional_inputs = ("dynamic",)
+    optional_inputs = ("dynamic", "depth1", "camera1")
     outputs = ("positions",)
     options = (Option("motion", "choice", "linear", "world-space motion model",
-                      choices=("linear", "quadratic")),)
+                      choices=("linear", "quadratic")),
+               Option("dilate", "choice", "off", "fgen: Mob-FGSR's 3x3 nearest-depth dilation "
+                      "in world space (full: every pixel takes the depth of the nearest pixel "
+                      "of its 3x3 window and moves as that pixel moves; mixed on held-out "
+                      "scenes, docs/results.md)", choices=("off", "full")))
 
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
@@ -195,6 +207,8 @@ class GffePosition(Stage):
 
         t = ctx["traj"]
         if not reads_back(t):  # GPU: computed (same values) rather than read back
+            return True, ""
+        if self.dilate != "off" and facts.get("camera_moved", True):
             return True, ""
         if not bool(ctx["dynamic"].any()) and torch_equal(t[0], t[1]):
             return False, "no dynamic pixels: positions are the unprojected depth"
@@ -205,9 +219,16 @@ class GffePosition(Stage):
         return {"positions": None if t is None else t[0]}
 
     def run(self, ctx):
-        from fgcli.ops.gffe import estimate_positions
+        from fgcli.ops.gffe import dilate_trajectory, estimate_positions
 
-        return {"positions": estimate_positions(ctx["traj"], ctx["alpha"], self.motion)}
+        traj = ctx["traj"]
+        if traj is None:  # every pixel static (the history stage had no work)
+            return self.skip(ctx)
+        d1 = ctx.get("depth1")
+        if self.dilate == "full" and d1 is not None and ctx.get("camera1") is not None:
+            traj = dilate_trajectory(traj, d1, ctx["camera1"])
+        pos = estimate_positions(traj, ctx["alpha"], self.motion)
+        return {"positions": pos}
 
 
 @register
