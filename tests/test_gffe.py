@@ -237,6 +237,59 @@ def test_background_behind_a_moving_object_is_collected_and_projected():
     assert (m.abs() < 1e-3).all()
 
 
+@pytest.mark.parametrize("scale", [1, 2])
+def test_layer_1_keeps_the_background_behind_a_static_occluder(scale):
+    """The wall seen in frame 0 goes to layer 1 once a static object covers it in frame 1
+    (Case 2). At full size (layer1_scale=1, the default) a hole there gets the wall's own
+    pixels back; the paper's quarter-size layer gives one fragment per 2x2 cell."""
+    cam = cam_at(0.0)
+    bgc = torch.rand(3, H, W, generator=torch.Generator().manual_seed(8))
+    d_wall = torch.full((1, H, W), D)
+    c1, d1 = bgc.clone(), d_wall.clone()
+    c1[:, :, 12:18], d1[0, :, 12:18] = 1.0, 3.0
+    static = torch.ones(1, H, W, dtype=torch.bool)
+    layers = collect_background(bgc, d_wall, static, cam, layer1_scale=scale)
+    layers = collect_background(c1, d1, static, cam, layers, cam, layer1_scale=scale)
+    assert tuple(layers[1]["depth"].shape[-2:]) == ((H, W) if scale == 1 else (H // 2, W // 2))
+    # columns 13..16: the silhouette columns 12 and 17 have wall beside them (not deeper
+    # than their whole 3x3 neighbourhood: rounding, not occlusion) and stay out
+    if scale == 1:
+        assert layers[1]["valid"][0, :, 13:17].all() and layers[1]["valid"].sum() == H * 4
+    # the occluder (layer 0) moved away in the extrapolated view: only layer 1 is left there
+    layers[0]["valid"][:, :, 12:18] = False
+    layers[0]["depth"][:, :, 12:18] = math.inf
+    holes = torch.zeros(1, H, W, dtype=torch.bool)
+    holes[0, :, 13:17] = True
+    for filt in ("nearest", "bilinear"):
+        c, d, _, filled = project_background(layers, cam, cam, holes, filt)
+        assert torch.equal(filled, holes)
+        assert torch.allclose(d[0, :, 13:17], torch.full((H, 4), D))
+        if scale == 1:
+            assert float((c[:, :, 13:17] - bgc[:, :, 13:17]).abs().max()) < 1e-3, filt
+        else:
+            assert not torch.allclose(c[:, :, 13:17], bgc[:, :, 13:17], atol=1e-2)
+
+
+def test_bilinear_background_projection_reads_the_layer_at_the_sub_pixel_place():
+    """A camera move of 0.3 px at the wall's depth: filter=bilinear reads the layer between
+    two cells (the backward warp of the texture); nearest takes one cell."""
+    from fgcli.ops.warp import backward_warp
+
+    cam0 = cam_at(0.0)
+    dx = 2 * D * 0.3 / (proj()[0, 0] * W)  # the wall moves 0.3 px left
+    bgc = torch.rand(3, H, W, generator=torch.Generator().manual_seed(9))
+    d_wall = torch.full((1, H, W), D)
+    layers = collect_background(bgc, d_wall, torch.ones(1, H, W, dtype=torch.bool), cam0)
+    holes = torch.ones(1, H, W, dtype=torch.bool)
+    want, _ = backward_warp(bgc, torch.stack([torch.full((H, W), 0.3), torch.zeros(H, W)]))
+    cb, _, _, fb = project_background(layers, cam0, cam_at(dx), holes, "bilinear")
+    cn, _, _, fn = project_background(layers, cam0, cam_at(dx), holes, "nearest")
+    inner = (slice(None), slice(None), slice(1, W - 2))
+    assert fb[0][:, 1:W - 2].all() and fn[0][:, 1:W - 2].all()
+    assert torch.allclose(cb[inner], want[inner], atol=1e-3)
+    assert float((cn[inner] - want[inner]).abs().max()) > 0.05
+
+
 def test_push_pull_fills_every_hole_finitely():
     color = torch.rand(3, 7, 5)
     valid = torch.zeros(1, 7, 5, dtype=torch.bool)

@@ -488,6 +488,12 @@ def _half(h, w):
     return (h + 1) // 2, (w + 1) // 2
 
 
+def _layer_scale(layer, H: int, W: int) -> float:
+    """Full pixels per cell of a layer grid: 1 (full size) or 2 (half width and height;
+    a 1x1 image is both)."""
+    return 1.0 if tuple(layer["depth"].shape[-2:]) == (H, W) else 2.0
+
+
 def _centres(h, w, scale, dev):
     """Pixel-coordinate centres (full-image units) of an (h, w) grid of cells `scale` wide."""
     ys = (torch.arange(h, dtype=torch.float32, device=dev) + 0.5) * scale
@@ -531,7 +537,8 @@ def _edge_pixels(depth: torch.Tensor, dynamic: torch.Tensor, depth_tol: float) -
 
 def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch.Tensor, cam1,
                        prev_layers: list | None = None, cam_prev=None,
-                       depth_tol: float = 0.02, edge_guard: bool = False) -> list:
+                       depth_tol: float = 0.02, edge_guard: bool = False,
+                       layer1_scale: int = 2) -> list:
     """Layered background collection (Sec. 4.2, Fig. 5), L = 2: layer 0 full size, layer 1
     half width and height (a quarter of the pixels). Layers are registered to cam1's view.
 
@@ -551,7 +558,10 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     color1 = sanitize_values(check_tensor(color1, "color1", 3, allow_batch=False))
     depth1 = check_tensor(depth1, "depth1", 1, allow_batch=False)
     H, W = depth1.shape[-2:]
-    h2, w2 = _half(H, W)
+    if layer1_scale not in (1, 2):
+        raise ValueError(f"layer1_scale: expected 1 or 2, got {layer1_scale}")
+    sc = float(layer1_scale)
+    h2, w2 = _half(H, W) if layer1_scale == 2 else (H, W)
     dev = depth1.device
     d1 = torch.nan_to_num(depth1, nan=0.0)
     usable = (d1 > 0) & static
@@ -588,7 +598,7 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     l0["color"] = torch.where(fill, gather_pixels(p0["color"], s).view(3, H, W), l0["color"])
     l0["depth"] = torch.where(fill, dep[None], l0["depth"])
     l0["valid"] = l0["valid"] | fill
-    src, dep = _splat_min(torch.floor(px / 2), torch.floor(py / 2), dn, case2, h2, w2)
+    src, dep = _splat_min(torch.floor(px / sc), torch.floor(py / sc), dn, case2, h2, w2)
     got = (src >= 0)[None]
     s = src.clamp_min(0).view(-1)
     l1["color"] = torch.where(got, gather_pixels(p0["color"], s).view(3, h2, w2), l1["color"])
@@ -596,14 +606,15 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     l1["valid"] = got
     # ---- level 1 of the previous buffer: Case 1 into B_1 when it lies behind B_0
     p1 = prev_layers[1]
-    px, py, dn, ok = _layer_fragments(p1, cam_prev, cam1, (H, W), 2.0)
+    sp = _layer_scale(p1, H, W)
+    px, py, dn, ok = _layer_fragments(p1, cam_prev, cam1, (H, W), sp)
     idx, inside = _sample_nearest_idx(px, py, H, W)
     inside = inside.view(*px.shape) & ok
     at_valid = gather_pixels(l0["valid"].float(), idx).view(*px.shape) > 0.5
     at_depth = gather_pixels(torch.where(l0["valid"], l0["depth"], d1), idx).view(*px.shape)
     behind = inside & (dn > at_depth * tol) & (at_valid | (at_depth > 0))
-    tx2, ty2 = torch.floor(px / 2), torch.floor(py / 2)
-    i2, _ = _sample_nearest_idx(px / 2, py / 2, h2, w2)
+    tx2, ty2 = torch.floor(px / sc), torch.floor(py / sc)
+    i2, _ = _sample_nearest_idx(px / sc, py / sc, h2, w2)
     free = gather_pixels((~l1["valid"]).float(), i2).view(*px.shape) > 0.5
     src, dep = _splat_min(tx2, ty2, dn, behind & free, h2, w2)
     fill = (src >= 0)[None] & ~l1["valid"]
@@ -614,11 +625,43 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     return [l0, l1]
 
 
-def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor):
+def _sample_layer(layer, src, px, py, depth_tol: float = 0.05):
+    """Bilinear reading of a full-size layer: the target pixel q whose winning fragment is
+    ``src`` (flat index into the layer grid; its exact projected position px, py) reads
+    the layer at the fragment's cell centre plus q's offset from (px, py), weighting only
+    valid layer cells within depth_tol (relative) of the fragment's depth. Where no such
+    weight is left, the fragment's own color. Returns (3, H, W)."""
+    H, W = src.shape
+    a = aux(H, W, src.device)
+    s = src.clamp_min(0).view(-1)
+    fx = gather_pixels(px[None], s).view(H, W)
+    fy = gather_pixels(py[None], s).view(H, W)
+    cx = (src.clamp_min(0) % W).float() + 0.5
+    cy = torch.div(src.clamp_min(0), W, rounding_mode="floor").float() + 0.5
+    flow = torch.stack([cx + (a["xh"] - fx) - a["xh"], cy + (a["yh"] - fy) - a["yh"]])
+    flow = torch.where((src >= 0)[None], flow, torch.zeros_like(flow))
+    m = layer["valid"].float()
+    d = torch.where(layer["valid"], layer["depth"], torch.zeros_like(layer["depth"]))
+    own = gather_pixels(layer["color"], s).view(3, H, W)
+    dref = gather_pixels(d, s).view(1, H, W)
+    # two passes: the depth reference is the fragment's own; cells off its surface are
+    # left out by reading each of the 4 taps' depth through the same weights
+    stack = torch.cat([layer["color"] * m, m, d * m])
+    smp, _ = backward_warp(stack, flow, "bilinear")
+    wsum = smp[3:4]
+    mean_d = smp[4:5] / wsum.clamp_min(1e-12)
+    good = (wsum > 0.5) & ((mean_d - dref).abs() <= dref * depth_tol)
+    col = smp[:3] / wsum.clamp_min(1e-12)
+    return torch.where(good, col, own)
+
+
+def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter: str = "nearest"):
     """Background projection: the collected layers (registered to cam_bg) seen by the
     extrapolated camera; only the ``holes`` (1, H, W) bool of the warped frame are filled.
     A hole takes the nearest fragment of either layer (layer 1 lands on its half-size
-    grid, each cell covering 2x2 pixels).
+    grid, each cell covering 2x2 pixels). filter 'bilinear' (fgen): a layer-0 hole reads
+    the layer bilinearly at its exact sub-pixel place (_sample_layer) rather than the
+    winning fragment's color (the paper's splat, 'nearest').
 
     Returns (color (3, H, W), depth (1, H, W), mv (2, H, W) toward frame 1, filled (1, H, W)
     bool); values outside ``filled`` are 0 / +inf."""
@@ -628,23 +671,33 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor):
     l0, l1 = layers
     px, py, dn, ok = _layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0)
     s0, d0 = _splat_min(torch.floor(px), torch.floor(py), dn, ok, H, W)
-    px1, py1, dn1, ok1 = _layer_fragments(l1, cam_bg, cam_x, (H, W), 2.0)
-    s1, d1 = _splat_min(torch.floor(px1 / 2), torch.floor(py1 / 2), dn1, ok1, h2, w2)
-    s1 = s1.repeat_interleave(2, 0).repeat_interleave(2, 1)[:H, :W]
-    d1 = d1.repeat_interleave(2, 0).repeat_interleave(2, 1)[:H, :W]
+    sc = _layer_scale(l1, H, W)
+    if sc == 1.0:
+        h2, w2 = H, W
+    px1, py1, dn1, ok1 = _layer_fragments(l1, cam_bg, cam_x, (H, W), sc)
+    s1, d1 = _splat_min(torch.floor(px1 / sc), torch.floor(py1 / sc), dn1, ok1, h2, w2)
+    if sc == 2.0:
+        s1 = s1.repeat_interleave(2, 0).repeat_interleave(2, 1)[:H, :W]
+        d1 = d1.repeat_interleave(2, 0).repeat_interleave(2, 1)[:H, :W]
     h0, h1 = s0 >= 0, s1 >= 0
     take1 = h1 & (~h0 | (d1 < d0))
     take0 = h0 & ~take1
-    c0 = gather_pixels(l0["color"], s0.clamp_min(0).view(-1)).view(3, H, W)
-    c1 = gather_pixels(l1["color"], s1.clamp_min(0).view(-1)).view(3, H, W)
+    if filter == "bilinear":
+        c0 = _sample_layer(l0, s0, px, py)
+    else:
+        c0 = gather_pixels(l0["color"], s0.clamp_min(0).view(-1)).view(3, H, W)
+    if filter == "bilinear" and sc == 1.0:
+        c1 = _sample_layer(l1, s1, px1, py1)
+    else:
+        c1 = gather_pixels(l1["color"], s1.clamp_min(0).view(-1)).view(3, H, W)
     color = torch.where(take1[None], c1, c0)
     depth = torch.where(take1, d1, d0)[None]
     # motion toward frame 1: the fragment's pixel in the background grid (frame 1's view)
     a = aux(H, W, dev)
     sx0 = (s0.clamp_min(0) % W).float() + 0.5
     sy0 = torch.div(s0.clamp_min(0), W, rounding_mode="floor").float() + 0.5
-    sx1 = ((s1.clamp_min(0) % w2).float() + 0.5) * 2.0
-    sy1 = (torch.div(s1.clamp_min(0), w2, rounding_mode="floor").float() + 0.5) * 2.0
+    sx1 = ((s1.clamp_min(0) % w2).float() + 0.5) * sc
+    sy1 = (torch.div(s1.clamp_min(0), w2, rounding_mode="floor").float() + 0.5) * sc
     mvx = torch.where(take1, sx1, sx0) - a["xh"]
     mvy = torch.where(take1, sy1, sy0) - a["yh"]
     filled = holes & (take0 | take1)[None]

@@ -285,7 +285,10 @@ class GffeBackgroundCollect(Stage):
                       range=(0.0, 10.0)),
                Option("edge_guard", "bool", False, "keep silhouette pixels (next to a dynamic "
                       "pixel or to a nearer depth edge; their anti-aliased color mixes the "
-                      "occluder in) out of layer 0, holding the older fragment there (fgen)"))
+                      "occluder in) out of layer 0, holding the older fragment there (fgen)"),
+               Option("layer1_scale", "int", 2, "cells of layer 1 (the background behind "
+                      "layer 0) in full pixels per side: 2 = quarter size (the paper's "
+                      "L = 2), 1 = full size (fgen)", range=(1, 2)))
     history = None
 
     def needed(self, ctx, facts):
@@ -303,12 +306,20 @@ class GffeBackgroundCollect(Stage):
         s = _store(ctx)
         prev, cam_prev = s.get("bg"), s.get("bg_camera")
         d1 = ctx["depth1"]
-        if prev is not None and tuple(prev[0]["depth"].shape[-2:]) != tuple(d1.shape[-2:]):
+        if prev is not None and (tuple(prev[0]["depth"].shape[-2:]) != tuple(d1.shape[-2:]) or
+                                 tuple(prev[1]["depth"].shape[-2:]) != _l1_shape(d1, self)):
             prev = None
         bg = collect_background(ctx["color1"], d1, ~ctx["dynamic"], ctx["camera1"], prev,
-                                cam_prev, self.depth_tol, self.edge_guard)
+                                cam_prev, self.depth_tol, self.edge_guard, self.layer1_scale)
         s.update(bg=bg, bg_camera=ctx["camera1"], bg_frame=_frame_id(ctx))
         return {"bg": bg}
+
+
+def _l1_shape(depth, stage) -> tuple:
+    from fgcli.ops.gffe import _half
+
+    h, w = depth.shape[-2:]
+    return _half(h, w) if stage.layer1_scale == 2 else (h, w)
 
 
 class _HoleStage(Stage):
@@ -355,7 +366,9 @@ class GffeBackgroundProject(_HoleStage):
     inputs = ("color", "depth", "mv", "valid", "camera_x")
     optional_inputs = ("bg", "camera1")
     outputs = ("color", "depth", "mv", "valid")
-    options = ()
+    options = (Option("filter", "choice", "nearest", "nearest: the winning fragment's color "
+                      "(the paper's splat); bilinear (fgen): the full-size layer read at the "
+                      "hole's exact sub-pixel place", choices=("nearest", "bilinear")),)
 
     def needed(self, ctx, facts):
         if ctx.get("bg") is None:
@@ -370,7 +383,8 @@ class GffeBackgroundProject(_HoleStage):
         if ctx.get("bg") is None:
             return self.skip(ctx)
         holes = ~ctx["valid"]
-        c, d, m, filled = project_background(ctx["bg"], ctx["camera1"], ctx["camera_x"], holes)
+        c, d, m, filled = project_background(ctx["bg"], ctx["camera1"], ctx["camera_x"], holes,
+                                            self.filter)
         return {"color": torch.where(filled, c, ctx["color"]),
                 "depth": torch.where(filled, d, ctx["depth"]),
                 "mv": torch.where(filled, m, ctx["mv"]), "valid": ctx["valid"] | filled}
