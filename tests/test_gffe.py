@@ -290,6 +290,27 @@ def test_bilinear_background_projection_reads_the_layer_at_the_sub_pixel_place()
     assert float((cn[inner] - want[inner]).abs().max()) > 0.05
 
 
+def test_a_surface_entering_across_the_border_hides_the_older_background():
+    """bg_project.entering: a hole whose frame-1 surface came in across the right border
+    (its vector leads off-screen) and is nearer than the layers' fragment takes frame 1 at
+    the pixel; a hole whose vector stays on screen keeps the layers' fragment."""
+    from fgcli.ops.gffe import entering_surface
+
+    filled = torch.zeros(1, H, W, dtype=torch.bool)
+    filled[0, :, W - 4:] = True
+    filled[0, :, 4:8] = True
+    depth = torch.full((1, H, W), D)
+    c1 = torch.rand(3, H, W, generator=torch.Generator().manual_seed(4))
+    d1 = torch.full((1, H, W), 2.0)
+    mv1 = torch.zeros(2, H, W)
+    mv1[0] = 10.0  # everything moves left: it was 10 px to the right
+    _, _, take = entering_surface(filled, depth, c1, d1, mv1, 0.5)
+    assert take[0, :, W - 4:].all() and not take[0, :, :W - 4].any()
+    d1[0, :, W - 4:] = 2 * D  # farther than the layers' fragment: the layers keep it
+    _, _, take = entering_surface(filled, depth, c1, d1, mv1, 0.5)
+    assert not take.any()
+
+
 def test_push_pull_fills_every_hole_finitely():
     color = torch.rand(3, 7, 5)
     valid = torch.zeros(1, 7, 5, dtype=torch.bool)

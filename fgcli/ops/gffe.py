@@ -706,6 +706,27 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter:
             torch.where(filled, torch.stack([mvx, mvy]), z(torch.stack([mvx, mvy]))), filled)
 
 
+def entering_surface(filled: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
+                     depth1: torch.Tensor, mv1: torch.Tensor, alpha: float):
+    """fgen: background-projected holes q where frame 1 shows a nearer surface whose vector
+    leads off-screen (``q + alpha * mv1(q)`` outside the image: the surface came in across
+    the border). Its unseen part, now at q, hides the layers' older fragment there (a near
+    object entering the frame: the layers remember the floor it now covers); frame 1 at q,
+    the surface's nearest seen pixel, stands in for it (Mob-FGSR's zero-motion case).
+
+    Args: filled (1, H, W) bool (projected holes), depth (1, H, W) their projected depth;
+    frame 1's color1 (3, H, W), depth1 (1, H, W), mv1 (2, H, W); alpha.
+    Returns (color (3, H, W), depth (1, H, W), take (1, H, W) bool)."""
+    H, W = filled.shape[-2:]
+    a = aux(H, W, filled.device)
+    m = torch.nan_to_num(mv1, nan=0.0).clamp(-OFF, OFF)
+    sx, sy = a["xh"] + float(alpha) * m[0], a["yh"] + float(alpha) * m[1]
+    off = ((sx < 0) | (sx >= W) | (sy < 0) | (sy >= H))[None]
+    d1 = torch.nan_to_num(depth1, nan=math.inf)
+    take = filled & off & (d1 < depth) & (d1 > 0)
+    return sanitize_values(color1), d1, take
+
+
 def project_border(border: dict, cam1, cam_x, holes: torch.Tensor):
     """The overscan border of frame 1 (Frame.overscan: the rendered pixels outside the
     display window) seen by the extrapolated camera: GFFE's use of a larger rendering

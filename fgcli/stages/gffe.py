@@ -364,11 +364,14 @@ class GffeBackgroundProject(_HoleStage):
     help = ("GFFE background projection: the collected layers seen by the extrapolated "
             "camera fill only the holes of the warped frame.")
     inputs = ("color", "depth", "mv", "valid", "camera_x")
-    optional_inputs = ("bg", "camera1")
+    optional_inputs = ("bg", "camera1", "color1", "depth1", "mv1", "alpha")
     outputs = ("color", "depth", "mv", "valid")
     options = (Option("filter", "choice", "nearest", "nearest: the winning fragment's color "
                       "(the paper's splat); bilinear (fgen): the full-size layer read at the "
-                      "hole's exact sub-pixel place", choices=("nearest", "bilinear")),)
+                      "hole's exact sub-pixel place", choices=("nearest", "bilinear")),
+               Option("entering", "bool", False, "fgen: where frame 1 shows a nearer surface "
+                      "that came in across the border (its vector leads off-screen), that "
+                      "surface (frame 1 at the pixel) rather than the layers' older fragment"))
 
     def needed(self, ctx, facts):
         if ctx.get("bg") is None:
@@ -385,6 +388,13 @@ class GffeBackgroundProject(_HoleStage):
         holes = ~ctx["valid"]
         c, d, m, filled = project_background(ctx["bg"], ctx["camera1"], ctx["camera_x"], holes,
                                             self.filter)
+        if self.entering and ctx.get("mv1") is not None:
+            from fgcli.ops.gffe import entering_surface
+
+            c1, d1, take = entering_surface(filled, d, ctx["color1"], ctx["depth1"],
+                                            ctx["mv1"], ctx["alpha"])
+            c, d = torch.where(take, c1, c), torch.where(take, d1, d)
+            m = torch.where(take, torch.zeros_like(m), m)
         return {"color": torch.where(filled, c, ctx["color"]),
                 "depth": torch.where(filled, d, ctx["depth"]),
                 "mv": torch.where(filled, m, ctx["mv"]), "valid": ctx["valid"] | filled}
