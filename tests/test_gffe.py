@@ -293,7 +293,8 @@ def test_bilinear_background_projection_reads_the_layer_at_the_sub_pixel_place()
 def test_a_surface_entering_across_the_border_hides_the_older_background():
     """bg_project.entering: a hole whose frame-1 surface came in across the right border
     (its vector leads off-screen) and is nearer than the layers' fragment takes frame 1 at
-    the pixel; a hole whose vector stays on screen keeps the layers' fragment."""
+    the pixel; a hole whose vector stays on screen keeps the layers' fragment, unless
+    (emerging) a nearer surface stands where the vector leads."""
     from fgcli.ops.gffe import entering_surface
 
     filled = torch.zeros(1, H, W, dtype=torch.bool)
@@ -309,6 +310,13 @@ def test_a_surface_entering_across_the_border_hides_the_older_background():
     d1[0, :, W - 4:] = 2 * D  # farther than the layers' fragment: the layers keep it
     _, _, take = entering_surface(filled, depth, c1, d1, mv1, 0.5)
     assert not take.any()
+    # behind: columns 4..7 read x + 5 = 9..12, where a nearer surface stands in frame 1:
+    # their surface came out from behind it
+    d1[0, :, 9:13] = 1.0
+    _, _, take = entering_surface(filled, depth, c1, d1, mv1, 0.5)
+    assert not take.any()
+    _, _, take = entering_surface(filled, depth, c1, d1, mv1, 0.5, behind=True)
+    assert take[0, :, 4:8].all() and int(take.sum()) == H * 4
 
 
 def test_push_pull_fills_every_hole_finitely():

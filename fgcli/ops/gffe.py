@@ -356,7 +356,8 @@ def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
     return bidx.view(-1), use & ~ok
 
 
-def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1) -> torch.Tensor:
+def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
+                      dynamic: torch.Tensor | None = None) -> torch.Tensor:
     """fgen: Mob-FGSR's / FSR 2's 3x3 nearest-depth dilation in world space. Each pixel x
     takes the depth of the nearest-depth pixel n of its window (fgcli.ops.splat.
     dilate_nearest_depth, same tie rules; it is unprojected on x's own ray) and moves as n
@@ -376,6 +377,8 @@ def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1) -> torch.T
     tn = [gather_pixels(traj[i], idx).view(4, h, w) for i in range(k)]
     p0 = traj[0]
     both = ((tn[0][3] > 0) & (p0[3] > 0))[None]
+    if dynamic is not None:  # only toward dynamic winners
+        both = both & (gather_pixels(dynamic.float(), idx).view(1, h, w) > 0.5)
     out = traj.clone()
     pd = unproject(dd, cam1)  # x also takes n's depth (its place in the splat)
     p0 = torch.where(both & (pd[3] > 0)[None], pd, p0)
@@ -707,15 +710,19 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter:
 
 
 def entering_surface(filled: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
-                     depth1: torch.Tensor, mv1: torch.Tensor, alpha: float):
+                     depth1: torch.Tensor, mv1: torch.Tensor, alpha: float,
+                     behind: bool = False):
     """fgen: background-projected holes q where frame 1 shows a nearer surface whose vector
     leads off-screen (``q + alpha * mv1(q)`` outside the image: the surface came in across
     the border). Its unseen part, now at q, hides the layers' older fragment there (a near
     object entering the frame: the layers remember the floor it now covers); frame 1 at q,
     the surface's nearest seen pixel, stands in for it (Mob-FGSR's zero-motion case).
+    behind: also where that point is on screen but frame 1 shows a nearer surface there
+    (the surface at q came out from behind it: its hidden part now lies at q; blade's box
+    emerging from behind the ball).
 
     Args: filled (1, H, W) bool (projected holes), depth (1, H, W) their projected depth;
-    frame 1's color1 (3, H, W), depth1 (1, H, W), mv1 (2, H, W); alpha.
+    frame 1's color1 (3, H, W), depth1 (1, H, W), mv1 (2, H, W); alpha; behind (bool).
     Returns (color (3, H, W), depth (1, H, W), take (1, H, W) bool)."""
     H, W = filled.shape[-2:]
     a = aux(H, W, filled.device)
@@ -723,6 +730,10 @@ def entering_surface(filled: torch.Tensor, depth: torch.Tensor, color1: torch.Te
     sx, sy = a["xh"] + float(alpha) * m[0], a["yh"] + float(alpha) * m[1]
     off = ((sx < 0) | (sx >= W) | (sy < 0) | (sy >= H))[None]
     d1 = torch.nan_to_num(depth1, nan=math.inf)
+    if behind:  # ... or from behind a nearer surface (the rule's sample is nearer)
+        idx, inside = _sample_nearest_idx(sx, sy, H, W)
+        ds = gather_pixels(d1, idx).view(1, H, W)
+        off = off | (inside.view(1, H, W) & (ds < d1 * (1.0 - 1e-3)))
     take = filled & off & (d1 < depth) & (d1 > 0)
     return sanitize_values(color1), d1, take
 

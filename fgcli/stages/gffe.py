@@ -198,7 +198,8 @@ class GffePosition(Stage):
                Option("dilate", "choice", "off", "fgen: Mob-FGSR's 3x3 nearest-depth dilation "
                       "in world space (full: every pixel takes the depth of the nearest pixel "
                       "of its 3x3 window and moves as that pixel moves; mixed on held-out "
-                      "scenes, docs/results.md)", choices=("off", "full")))
+                      "scenes, docs/results.md; dynamic: only toward a dynamic winner)",
+                      choices=("off", "full", "dynamic")))
 
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
@@ -225,8 +226,9 @@ class GffePosition(Stage):
         if traj is None:  # every pixel static (the history stage had no work)
             return self.skip(ctx)
         d1 = ctx.get("depth1")
-        if self.dilate == "full" and d1 is not None and ctx.get("camera1") is not None:
-            traj = dilate_trajectory(traj, d1, ctx["camera1"])
+        if self.dilate != "off" and d1 is not None and ctx.get("camera1") is not None:
+            traj = dilate_trajectory(traj, d1, ctx["camera1"],
+                                     ctx.get("dynamic") if self.dilate == "dynamic" else None)
         pos = estimate_positions(traj, ctx["alpha"], self.motion)
         return {"positions": pos}
 
@@ -371,7 +373,10 @@ class GffeBackgroundProject(_HoleStage):
                       "hole's exact sub-pixel place", choices=("nearest", "bilinear")),
                Option("entering", "bool", False, "fgen: where frame 1 shows a nearer surface "
                       "that came in across the border (its vector leads off-screen), that "
-                      "surface (frame 1 at the pixel) rather than the layers' older fragment"))
+                      "surface (frame 1 at the pixel) rather than the layers' older fragment"),
+               Option("emerging", "bool", False, "fgen, with entering: also a nearer surface "
+                      "that came out from behind a still nearer one (its vector leads onto "
+                      "that one)"))
 
     def needed(self, ctx, facts):
         if ctx.get("bg") is None:
@@ -392,7 +397,7 @@ class GffeBackgroundProject(_HoleStage):
             from fgcli.ops.gffe import entering_surface
 
             c1, d1, take = entering_surface(filled, d, ctx["color1"], ctx["depth1"],
-                                            ctx["mv1"], ctx["alpha"])
+                                            ctx["mv1"], ctx["alpha"], self.emerging)
             c, d = torch.where(take, c1, c), torch.where(take, d1, d)
             m = torch.where(take, torch.zeros_like(m), m)
         return {"color": torch.where(filled, c, ctx["color"]),
