@@ -403,14 +403,18 @@ def test_no_work_on_a_static_frame_stages_are_skipped():
     f = plane_frame(0, 0.0, torch.rand(3, H, W))
     stages = pl.load("gffe-extrap").build("extrap")
     tm = pl.Timings()
+    state = RunState()
     for n in range(3):
         ctx = make_ctx(f.replace(number=n - 1) if n else None, f.replace(number=n), 0.5,
                        "extrap")
-        ctx["state"], ctx["prev_time"] = RunState(), 0.0
+        ctx["state"], ctx["prev_time"] = state, 0.0
         ctx = pl.run_stages(stages, ctx, tm, detect_cuts=False)
         assert torch.equal(ctx["color"], f.color)
     skipped = {s for _, s, _ in tm.skipped}
     assert {"history", "warp", "bg_project", "hole_fill", "position"} <= skipped
+    # the layers are collected once and kept while nothing moves
+    kept = [n for n, s, w in tm.skipped if s == "background" and "kept" in w]
+    assert len(kept) == 2 and state.store["gffe"]["bg"] is not None
 
 
 def test_count_three_reuses_the_per_frame_state():

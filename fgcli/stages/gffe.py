@@ -297,10 +297,19 @@ class GffeBackgroundCollect(Stage):
         s = _store(ctx)
         if s.get("bg_frame") is not None and s.get("bg_frame") == _frame_id(ctx):
             return False, "collected once per rendered frame"
+        if s.get("bg") is not None and _static_frame(ctx, facts) and \
+                tuple(s["bg"][0]["depth"].shape[-2:]) == tuple(ctx["depth1"].shape[-2:]):
+            # nothing moves: no hole can appear in this frame's extrapolation, and the
+            # layers already hold every fragment it shows (its shading may have changed:
+            # the next collection with motion takes the new frame's own pixels again)
+            return False, "static camera and no motion: the layers are kept as they are"
         return True, ""
 
     def skip(self, ctx):
-        return {"bg": _store(ctx).get("bg")}
+        s = _store(ctx)
+        if s.get("bg") is not None:
+            s["bg_frame"] = _frame_id(ctx)
+        return {"bg": s.get("bg")}
 
     def run(self, ctx):
         from fgcli.ops.gffe import collect_background
