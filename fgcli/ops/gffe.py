@@ -333,27 +333,38 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
 def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
     """fgen: the pixel of the 3x3 block around x' whose previous depth is nearest (in ratio)
     to the current depth; (idx, fallback) where fallback marks pixels with no neighbour
-    within tol (relative)."""
+    within tol (relative). Only the ``use`` pixels are searched (on the CPU, only they are
+    computed: usually a small part of the frame)."""
     h, w = depth1.shape[-2:]
-    d0 = torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30)
-    d1 = torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30)
-    ix = torch.floor(xp).clamp(0, w - 1).to(torch.int64)
-    iy = torch.floor(yp).clamp(0, h - 1).to(torch.int64)
-    best = torch.full((h, w), math.inf, device=d0.device)
-    bidx = idx.view(h, w).clone()
-    ld1 = torch.log(d1.clamp_min(1e-30))
+    ld0 = torch.log(torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min(1e-30)).view(-1)
+    sub = reads_back(use)
+    sel = use.view(-1).nonzero().squeeze(1) if sub else None
+    if sub and sel.numel() == 0:
+        return idx, torch.zeros_like(use)
+
+    def pick(t):
+        return t.reshape(-1)[sel] if sub else t.reshape(-1)
+
+    ld1 = torch.log(pick(torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30)).clamp_min(1e-30))
+    ix = torch.floor(pick(xp)).clamp(0, w - 1).to(torch.int64)
+    iy = torch.floor(pick(yp)).clamp(0, h - 1).to(torch.int64)
+    best = torch.full_like(ld1, math.inf)
+    bidx = pick(idx).clone()
     for oy in (0, -1, 1):
         for ox in (0, -1, 1):
-            jx = (ix + ox).clamp(0, w - 1)
-            jy = (iy + oy).clamp(0, h - 1)
-            j = jy * w + jx
-            dj = d0.reshape(-1)[j.reshape(-1)].view(h, w)
-            err = (torch.log(dj.clamp_min(1e-30)) - ld1).abs()
+            j = (iy + oy).clamp(0, h - 1) * w + (ix + ox).clamp(0, w - 1)
+            err = (ld0[j] - ld1).abs()
             better = err < best - 1e-7
             best = torch.where(better, err, best)
             bidx = torch.where(better, j, bidx)
-    ok = best <= math.log1p(tol)
-    return bidx.view(-1), use & ~ok
+    miss = best > math.log1p(tol)
+    if not sub:
+        return bidx, use & miss.view(h, w)
+    out = idx.clone()
+    out[sel] = bidx
+    fb = torch.zeros(h * w, dtype=torch.bool, device=use.device)
+    fb[sel] = miss
+    return out, fb.view(h, w)
 
 
 def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
@@ -628,34 +639,56 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     return [l0, l1]
 
 
-def _sample_layer(layer, src, px, py, depth_tol: float = 0.05):
+def _sample_layer(layer, src, px, py, want, depth_tol: float = 0.05):
     """Bilinear reading of a full-size layer: the target pixel q whose winning fragment is
     ``src`` (flat index into the layer grid; its exact projected position px, py) reads
     the layer at the fragment's cell centre plus q's offset from (px, py), weighting only
     valid layer cells within depth_tol (relative) of the fragment's depth. Where no such
-    weight is left, the fragment's own color. Returns (3, H, W)."""
+    weight is left, the fragment's own color. Only the ``want`` (H, W) pixels are read (on
+    the CPU only they are computed). Returns (3, H, W), the fragment's color elsewhere."""
     H, W = src.shape
-    a = aux(H, W, src.device)
     s = src.clamp_min(0).view(-1)
-    fx = gather_pixels(px[None], s).view(H, W)
-    fy = gather_pixels(py[None], s).view(H, W)
-    cx = (src.clamp_min(0) % W).float() + 0.5
-    cy = torch.div(src.clamp_min(0), W, rounding_mode="floor").float() + 0.5
-    flow = torch.stack([cx + (a["xh"] - fx) - a["xh"], cy + (a["yh"] - fy) - a["yh"]])
-    flow = torch.where((src >= 0)[None], flow, torch.zeros_like(flow))
-    m = layer["valid"].float()
-    d = torch.where(layer["valid"], layer["depth"], torch.zeros_like(layer["depth"]))
-    own = gather_pixels(layer["color"], s).view(3, H, W)
-    dref = gather_pixels(d, s).view(1, H, W)
-    # two passes: the depth reference is the fragment's own; cells off its surface are
-    # left out by reading each of the 4 taps' depth through the same weights
-    stack = torch.cat([layer["color"] * m, m, d * m])
-    smp, _ = backward_warp(stack, flow, "bilinear")
-    wsum = smp[3:4]
-    mean_d = smp[4:5] / wsum.clamp_min(1e-12)
-    good = (wsum > 0.5) & ((mean_d - dref).abs() <= dref * depth_tol)
-    col = smp[:3] / wsum.clamp_min(1e-12)
-    return torch.where(good, col, own)
+    out = gather_pixels(layer["color"], s).view(3, H, W)
+    sub = reads_back(want)
+    sel = want.reshape(-1).nonzero().squeeze(1) if sub else None
+    if sub and sel.numel() == 0:
+        return out
+
+    def pick(t):
+        return t.reshape(-1)[sel] if sub else t.reshape(-1)
+
+    a = aux(H, W, src.device)
+    ss = pick(src).clamp_min(0)
+    qx = pick(a["xh"].expand(H, W))
+    qy = pick(a["yh"].expand(H, W))
+    # the cell centre of the fragment plus q's offset from where the fragment landed
+    x = (ss % W).float() + 0.5 + (qx - px.reshape(-1)[ss]) - 0.5
+    y = torch.div(ss, W, rounding_mode="floor").float() + 0.5 + (qy - py.reshape(-1)[ss]) - 0.5
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = x - x0, y - y0
+    valid = layer["valid"].reshape(-1)
+    dep = layer["depth"].reshape(-1)
+    col = layer["color"].reshape(3, -1)
+    dref = dep[ss]
+    acc = torch.zeros(3, ss.numel(), device=src.device)
+    wsum = torch.zeros(ss.numel(), device=src.device)
+    for oy, wy in ((0, 1.0 - fy), (1, fy)):
+        for ox, wx in ((0, 1.0 - fx), (1, fx)):
+            tx, ty = x0 + ox, y0 + oy
+            inside = (tx >= 0) & (tx < W) & (ty >= 0) & (ty < H)
+            j = (ty.clamp(0, H - 1) * W + tx.clamp(0, W - 1)).to(torch.int64)
+            ok = inside & valid[j] & ((dep[j] - dref).abs() <= dref * depth_tol)
+            wt = torch.where(ok, wx * wy, torch.zeros_like(wx))
+            acc += col[:, j] * wt
+            wsum += wt
+    good = wsum > 0.5
+    val = torch.where(good, acc / wsum.clamp_min(1e-12), col[:, ss])
+    flat = out.view(3, -1)
+    if sub:
+        flat[:, sel] = val
+    else:
+        flat.copy_(torch.where(want.reshape(1, -1), val, flat))
+    return out
 
 
 def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter: str = "nearest"):
@@ -685,12 +718,13 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter:
     h0, h1 = s0 >= 0, s1 >= 0
     take1 = h1 & (~h0 | (d1 < d0))
     take0 = h0 & ~take1
+    hole = holes[0]
     if filter == "bilinear":
-        c0 = _sample_layer(l0, s0, px, py)
+        c0 = _sample_layer(l0, s0, px, py, hole & take0)
     else:
         c0 = gather_pixels(l0["color"], s0.clamp_min(0).view(-1)).view(3, H, W)
     if filter == "bilinear" and sc == 1.0:
-        c1 = _sample_layer(l1, s1, px1, py1)
+        c1 = _sample_layer(l1, s1, px1, py1, hole & take1)
     else:
         c1 = gather_pixels(l1["color"], s1.clamp_min(0).view(-1)).view(3, H, W)
     color = torch.where(take1[None], c1, c0)
