@@ -145,10 +145,11 @@ def test_silhouette_pixel_history_reads_its_own_surface_not_the_one_behind(shift
             assert float(err.min()) > 0.5  # the paper's lookup: the edge pixel lags
 
 
-def test_full_dilation_moves_an_edge_pixel_with_its_object():
+def test_dilation_moves_an_edge_pixel_with_its_object():
     """position.dilate=full: a background-depth pixel beside a moving object takes the
     object's depth and motion (Mob-FGSR's dilation in world space); a pixel with no nearer
-    neighbour keeps its own position and trajectory."""
+    neighbour keeps its own position and trajectory. dilate=dynamic: only static pixels
+    beside a dynamic winner."""
     from fgcli.ops.gffe import dilate_trajectory
 
     cam = cam_at(0.0)
@@ -164,6 +165,18 @@ def test_full_dilation_moves_an_edge_pixel_with_its_object():
     assert torch.equal(out[:, :, :, 20:], traj[:, :, :, 20:])  # far from the object
     assert torch.allclose(px[8:16, 8:16], (torch.arange(8, 16) + 0.5 + 2.0).expand(8, 8),
                           atol=1e-2)
+    # dilate=dynamic: the same rim pixel (static) follows its dynamic neighbour; a static
+    # pixel beside a nearer static one (the step at column 20) keeps its own position
+    d[0, :, 20:] = 1.5 * D
+    d0 = d.roll(-2, -1).clone()
+    d0[0, :, 18:] = d[0, :, 18:]  # the static step did not move
+    traj, dyn = track_history(d, mv, cam, cam, d0, k=2)
+    assert dyn[0, 8:16, 8:16].all() and not dyn[0, :, 16:].any()
+    out = dilate_trajectory(traj, d, cam, dyn)
+    px, _, _, _ = project(estimate_positions(out, 1.0), cam, (H, W))
+    assert abs(float(px[10, 16]) - (16.5 + 2.0)) < 1e-2
+    assert torch.equal(out[:, :, :, 18:], traj[:, :, :, 18:])
+    assert torch.equal(out[:, :, 8:16, 8:16], traj[:, :, 8:16, 8:16])  # dynamic: its own
 
 
 def test_quadratic_positions_are_exact_for_constant_acceleration():

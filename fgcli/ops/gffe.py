@@ -373,7 +373,9 @@ def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
     takes the depth of the nearest-depth pixel n of its window (fgcli.ops.splat.
     dilate_nearest_depth, same tie rules; it is unprojected on x's own ray) and moves as n
     moves: P_i(x) = P_0'(x) + (P_i(n) - P_0(n)). Anti-aliased silhouettes and contact
-    shadows then travel with their object. Only where x and n are both surfaces.
+    shadows then travel with their object. Only where x and n are both surfaces; with
+    ``dynamic`` (1, H, W) bool, only static pixels x whose winner n is dynamic (a moving
+    object's rim and the shadow it drags; the position stage's dilate=dynamic).
 
     Args: traj (k, 4, H, W) newest first; depth1 (1, H, W); cam1 frame 1's camera.
     Returns a new (k, 4, H, W)."""
@@ -388,8 +390,8 @@ def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
     tn = [gather_pixels(traj[i], idx).view(4, h, w) for i in range(k)]
     p0 = traj[0]
     both = ((tn[0][3] > 0) & (p0[3] > 0))[None]
-    if dynamic is not None:  # only toward dynamic winners
-        both = both & (gather_pixels(dynamic.float(), idx).view(1, h, w) > 0.5)
+    if dynamic is not None:  # only static pixels, only toward dynamic winners
+        both = both & (gather_pixels(dynamic.float(), idx).view(1, h, w) > 0.5) & ~dynamic
     out = traj.clone()
     pd = unproject(dd, cam1)  # x also takes n's depth (its place in the splat)
     p0 = torch.where(both & (pd[3] > 0)[None], pd, p0)

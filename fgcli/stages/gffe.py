@@ -196,10 +196,11 @@ class GffePosition(Stage):
     options = (Option("motion", "choice", "linear", "world-space motion model",
                       choices=("linear", "quadratic")),
                Option("dilate", "choice", "off", "fgen: Mob-FGSR's 3x3 nearest-depth dilation "
-                      "in world space (full: every pixel takes the depth of the nearest pixel "
-                      "of its 3x3 window and moves as that pixel moves; mixed on held-out "
-                      "scenes, docs/results.md; dynamic: only toward a dynamic winner)",
-                      choices=("off", "full", "dynamic")))
+                      "in world space: a pixel takes the depth of the nearest pixel of its "
+                      "3x3 window and moves as that pixel moves. dynamic: only static pixels "
+                      "beside a nearer dynamic one (a moving object's rim and contact "
+                      "shadow); full: every pixel (Mob-FGSR's rule; worse on held-out "
+                      "scenes, docs/results.md)", choices=("off", "dynamic", "full")))
 
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
@@ -209,7 +210,7 @@ class GffePosition(Stage):
         t = ctx["traj"]
         if not reads_back(t):  # GPU: computed (same values) rather than read back
             return True, ""
-        if self.dilate != "off" and facts.get("camera_moved", True):
+        if self.dilate == "full" and facts.get("camera_moved", True):
             return True, ""
         if not bool(ctx["dynamic"].any()) and torch_equal(t[0], t[1]):
             return False, "no dynamic pixels: positions are the unprojected depth"
