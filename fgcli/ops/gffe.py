@@ -252,7 +252,8 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     (relative), x' fell off the surface (a silhouette: its vector ends on the wall behind
     or on an occluder) and the surface's previous position is taken at x' with its current
     depth (screen-space motion). The nearest pixel alone makes an edge pixel whose x' lands
-    on a far background lag behind its object (held-out scenes: +0.39 dB, docs/results.md). Where x' is off-screen, the previous sample
+    on a far background lag behind its object (held-out scenes: +0.5-0.65 dB,
+    docs/results.md). Where x' is off-screen, the previous sample
     is unusable, or it is a surface where p is sky (or the reverse), the pixel keeps
     P_i = p. Without cam0 (first frame, empty history) every pixel passes as static
     (first_frame='static', the paper), or (first_frame='mv', fgen) pixels whose vector
@@ -663,9 +664,10 @@ def _sample_layer(layer, src, px, py, want, depth_tol: float = 0.05):
     ss = pick(src).clamp_min(0)
     qx = pick(a["xh"].expand(H, W))
     qy = pick(a["yh"].expand(H, W))
-    # the cell centre of the fragment plus q's offset from where the fragment landed
-    x = (ss % W).float() + 0.5 + (qx - px.reshape(-1)[ss]) - 0.5
-    y = torch.div(ss, W, rounding_mode="floor").float() + 0.5 + (qy - py.reshape(-1)[ss]) - 0.5
+    # the fragment's cell centre plus q's offset from where the fragment landed, in tap
+    # coordinates (pixel centres at integers: the centre's + 0.5 cancels the taps' - 0.5)
+    x = (ss % W).float() + (qx - px.reshape(-1)[ss])
+    y = torch.div(ss, W, rounding_mode="floor").float() + (qy - py.reshape(-1)[ss])
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = x - x0, y - y0
     valid = layer["valid"].reshape(-1)
@@ -697,9 +699,10 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter:
     """Background projection: the collected layers (registered to cam_bg) seen by the
     extrapolated camera; only the ``holes`` (1, H, W) bool of the warped frame are filled.
     A hole takes the nearest fragment of either layer (layer 1 lands on its half-size
-    grid, each cell covering 2x2 pixels). filter 'bilinear' (fgen): a layer-0 hole reads
-    the layer bilinearly at its exact sub-pixel place (_sample_layer) rather than the
-    winning fragment's color (the paper's splat, 'nearest').
+    grid, each cell covering 2x2 pixels, unless it is full size: layer1_scale=1).
+    filter 'bilinear' (fgen): a hole reads a full-size layer bilinearly at its exact
+    sub-pixel place (_sample_layer) rather than the winning fragment's color (the paper's
+    splat, 'nearest'; a half-size layer 1 always gives its fragment's color).
 
     Returns (color (3, H, W), depth (1, H, W), mv (2, H, W) toward frame 1, filled (1, H, W)
     bool); values outside ``filled`` are 0 / +inf."""
