@@ -317,7 +317,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     for i in range(1, k - 1):
         src = prev[i] if prev is not None and prev.shape[0] > i else None
         olds.append(p1 if src is None else gather_pixels(src, idx).view(4, h, w))
-    if fallback is not None:
+    if fallback is not None and (not reads_back(fallback) or bool(fallback.any())):
         # no pixel near x' shows this surface (a silhouette: x' fell on the surface behind
         # or in front): it was at x' at its current view depth (screen-space motion)
         pf = unproject(depth1, cam0, xp, yp, (h, w))
@@ -331,6 +331,18 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     return traj, use[None]
 
 
+def _selection(mask: torch.Tensor) -> torch.Tensor | None:
+    """Flat indices of ``mask``'s pixels where it reads back cheaply (the CPU: compute only
+    those), else None (a GPU: every pixel, no host round-trip). See _pick."""
+    return mask.reshape(-1).nonzero().squeeze(1) if reads_back(mask) else None
+
+
+def _pick(t: torch.Tensor, sel: torch.Tensor | None) -> torch.Tensor:
+    """t flattened, at the _selection indices (all of it for None)."""
+    flat = t.reshape(-1)
+    return flat if sel is None else flat[sel]
+
+
 def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
     """fgen: the pixel of the 3x3 block around x' whose previous depth is nearest (in ratio)
     to the current depth; (idx, fallback) where fallback marks pixels with no neighbour
@@ -338,19 +350,15 @@ def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
     computed: usually a small part of the frame)."""
     h, w = depth1.shape[-2:]
     ld0 = torch.log(torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min(1e-30)).view(-1)
-    sub = reads_back(use)
-    sel = use.view(-1).nonzero().squeeze(1) if sub else None
-    if sub and sel.numel() == 0:
+    sel = _selection(use)
+    if sel is not None and sel.numel() == 0:
         return idx, torch.zeros_like(use)
-
-    def pick(t):
-        return t.reshape(-1)[sel] if sub else t.reshape(-1)
-
-    ld1 = torch.log(pick(torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30)).clamp_min(1e-30))
-    ix = torch.floor(pick(xp)).clamp(0, w - 1).to(torch.int64)
-    iy = torch.floor(pick(yp)).clamp(0, h - 1).to(torch.int64)
+    ld1 = torch.log(_pick(torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30), sel)
+                    .clamp_min(1e-30))
+    ix = torch.floor(_pick(xp, sel)).clamp(0, w - 1).to(torch.int64)
+    iy = torch.floor(_pick(yp, sel)).clamp(0, h - 1).to(torch.int64)
     best = torch.full_like(ld1, math.inf)
-    bidx = pick(idx).clone()
+    bidx = _pick(idx, sel).clone()
     for oy in (0, -1, 1):
         for ox in (0, -1, 1):
             j = (iy + oy).clamp(0, h - 1) * w + (ix + ox).clamp(0, w - 1)
@@ -359,7 +367,7 @@ def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
             best = torch.where(better, err, best)
             bidx = torch.where(better, j, bidx)
     miss = best > math.log1p(tol)
-    if not sub:
+    if sel is None:
         return bidx, use & miss.view(h, w)
     out = idx.clone()
     out[sel] = bidx
@@ -652,18 +660,13 @@ def _sample_layer(layer, src, px, py, want, depth_tol: float = 0.05):
     H, W = src.shape
     s = src.clamp_min(0).view(-1)
     out = gather_pixels(layer["color"], s).view(3, H, W)
-    sub = reads_back(want)
-    sel = want.reshape(-1).nonzero().squeeze(1) if sub else None
-    if sub and sel.numel() == 0:
+    sel = _selection(want)
+    if sel is not None and sel.numel() == 0:
         return out
-
-    def pick(t):
-        return t.reshape(-1)[sel] if sub else t.reshape(-1)
-
     a = aux(H, W, src.device)
-    ss = pick(src).clamp_min(0)
-    qx = pick(a["xh"].expand(H, W))
-    qy = pick(a["yh"].expand(H, W))
+    ss = _pick(src, sel).clamp_min(0)
+    qx = _pick(a["xh"].expand(H, W), sel)
+    qy = _pick(a["yh"].expand(H, W), sel)
     # the fragment's cell centre plus q's offset from where the fragment landed, in tap
     # coordinates (pixel centres at integers: the centre's + 0.5 cancels the taps' - 0.5)
     x = (ss % W).float() + (qx - px.reshape(-1)[ss])
@@ -688,7 +691,7 @@ def _sample_layer(layer, src, px, py, want, depth_tol: float = 0.05):
     good = wsum > 0.5
     val = torch.where(good, acc / wsum.clamp_min(1e-12), col[:, ss])
     flat = out.view(3, -1)
-    if sub:
+    if sel is not None:
         flat[:, sel] = val
     else:
         flat.copy_(torch.where(want.reshape(1, -1), val, flat))
