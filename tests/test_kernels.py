@@ -268,7 +268,7 @@ def _pipeline_outputs(name, mode, backend, f, alpha):
 @pytest.mark.parametrize("name,mode", [("mob-fgsr", "interp"), ("mob-fgsr", "extrap"),
                                        ("mv-warp", "interp"), ("mv-warp", "extrap"),
                                        ("blend", "interp"), ("repeat", "interp"),
-                                       ("mv-interp", "interp")])
+                                       ("mv-interp", "interp"), ("fsr3-interp", "interp")])
 def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
     s0, s1 = tiny_scene(0), tiny_scene(1)
     f = {f"{k}{i}": torch.from_numpy(s[key]) for i, s in ((0, s0), (1, s1))
@@ -280,6 +280,33 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
         same(f"{name} color", c_n.masked_fill(skip, 0), c_t.masked_fill(skip, 0))
         same(f"{name} depth", d_n, d_t)
         same(f"{name} mv", m_n, m_t)
+
+
+@pytest.mark.parametrize("h,w,levels,block,search,median", [
+    (72, 128, 7, 8, 8, True),     # FSR 3's settings (the unrolled 8x8 SAD)
+    (37, 53, 3, 8, 8, False),     # partial blocks at the right and bottom edges
+    (50, 70, 4, 5, 3, True),      # other block and search sizes (the generic loop)
+    (1, 1, 7, 8, 8, True),        # one pixel
+    (9, 300, 7, 8, 2, True),      # wide and flat: a single level
+])
+def test_block_flow(h, w, levels, block, search, median):
+    """The block search is integer arithmetic: equal to the reference exactly, on any CPU
+    (large shifts that need the pyramid, noise, flat regions where ties decide, edges)."""
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(h * 1000 + w)
+    base = torch.rand(1, 1, h + 40, w + 40, generator=g)
+    base = torch.nn.functional.avg_pool2d(base, 5, 1, 2)[0] * 255.0
+    l0 = base[:, 10:10 + h, 10:10 + w].round()
+    l1 = (base[:, 13:13 + h, 4:4 + w] + torch.randint(-4, 5, (1, h, w), generator=g)).clamp(0, 255)
+    l1[:, : h // 3, : w // 3] = 128.0  # a flat region: every offset ties
+    for a, b in ((l0, l1.round()), (l0, l0), (torch.zeros_like(l0), torch.full_like(l0, 255.0))):
+        ref = fsr3.block_flow(a, b, levels, block, search, median)
+        assert torch.equal(K.block_flow(a, b, levels, block, search, median), ref)
+    # the sub-pixel option runs the reference's refinement after the kernel's search
+    ref = fsr3.block_flow(l0, l1.round(), levels, block, max(search, 2), median, True)
+    assert torch.equal(K.block_flow(l0, l1.round(), levels, block, max(search, 2), median,
+                                    True), ref)
 
 
 # ----------------------------------------------------------------------------- dispatch, CLI

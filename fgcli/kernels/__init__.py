@@ -28,6 +28,7 @@ KERNEL_OPS = {
     "mv_warp": "fgcli.kernels.reference",
     "crossfade": "fgcli.kernels.reference",
     "guiding_flows": "fgcli.ops.mvinterp",
+    "block_flow": "fgcli.ops.fsr3",
 }
 
 

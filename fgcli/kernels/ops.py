@@ -313,7 +313,8 @@ _GROUPS = (
     (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
      lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
-     lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
+     lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5),
+     lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
 )
 
 
@@ -326,12 +327,13 @@ def _warm_group(k: int) -> None:
 def _cache_cold() -> bool:
     """True when some kernel has no on-disk cache index yet (a fresh install). A stale index
     (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
-    from fgcli.kernels import blend, fill, splat, warp
+    from fgcli.kernels import blend, fill, flow, splat, warp
 
     kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
                fill.gap_fill_kernel,
                fill.extrap_fill_kernel, warp.warp_kernel, warp.mv_warp_kernel,
-               blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel)
+               blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
+               flow.block_search_kernel)
     try:
         import os
 
@@ -378,3 +380,25 @@ def any_nonzero(t) -> bool:
     from fgcli.kernels.blend import any_nonzero_kernel
 
     return bool(any_nonzero_kernel(_a(t).reshape(-1)))
+
+
+# ----------------------------------------------------------------------------- optical flow
+
+
+def _block_level(cur, prev, pred, block, search):
+    """fgcli.ops.fsr3._block_level (integer vectors) by the numba kernel."""
+    from fgcli.kernels.flow import block_search_kernel
+
+    out = np.empty((2,) + tuple(pred.shape[-2:]), dtype=np.int64)
+    block_search_kernel(_a(cur.to(torch.int32)), _a(prev.to(torch.int32)),
+                        _a(pred.to(torch.int64)), int(block), int(search), out)
+    return torch.from_numpy(out).to(torch.float32)
+
+
+def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=False):
+    from fgcli.ops import fsr3 as FS
+
+    if not _cpu(lum0, lum1):
+        return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
+    return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
+                               subpixel)

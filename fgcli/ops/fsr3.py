@@ -366,6 +366,14 @@ def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: i
         (2, ceil(H/block), ceil(W/block)) block vectors in px (1/block resolution):
         block b of frame 1 is at ``b + flow`` in frame 0.
     """
+    return block_flow_chain(_block_level, lum0, lum1, levels, block, search, median, subpixel)
+
+
+def block_flow_chain(level, lum0, lum1, levels=7, block=8, search=8, median=True,
+                     subpixel=False):
+    """block_flow with the per-level search given: ``level(cur, prev, pred, block, search)``
+    (integer vectors, as _block_level; the numba kernel of fgcli.kernels.ops has the same
+    signature). The sub-pixel refinement always runs _block_level."""
     lum0 = check_tensor(lum0, "lum0", 1, allow_batch=False)
     lum1 = check_tensor(lum1, "lum1", 1, allow_batch=False)
     check_same(lum0, "lum0", (lum1, "lum1"))
@@ -386,13 +394,13 @@ def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: i
                          mode="replicate")[:, :nby, :nbx] * 2.0
         if lv == 0 and subpixel:
             if median:  # the median runs on the integer field; the refinement comes after
-                flow = _vector_median3(_block_level(p1[lv][0], p0[lv][0], pred, block, search))
+                flow = _vector_median3(level(p1[lv][0], p0[lv][0], pred, block, search))
                 flow = _block_level(p1[lv][0], p0[lv][0], flow, block, 2, subpixel=True,
                                     keep=True)
             else:
                 flow = _block_level(p1[lv][0], p0[lv][0], pred, block, search, subpixel=True)
             break
-        flow = _block_level(p1[lv][0], p0[lv][0], pred, block, search)
+        flow = level(p1[lv][0], p0[lv][0], pred, block, search)
         if median:
             flow = _vector_median3(flow)
     return flow

@@ -102,6 +102,7 @@ class FSR3FieldFill(Stage):
 @register
 class FSR3OpticalFlow(Stage):
     name = "fsr3_optical_flow"
+    uses_kernels = True
     help = ("FfxOpticalFlow: 8-bit luminance pyramid, 8x8 blocks, SAD search -8..+7 coarse to "
             "fine, 3x3 vector median, 1/8 resolution (flow=block); or OpenCV DIS flow "
             "(flow=dis, a stand-in, labelled). Then the optical-flow vector field of the "
@@ -124,9 +125,9 @@ class FSR3OpticalFlow(Stage):
 
     def run(self, ctx):
         from fgcli.ops._util import reads_back
-        from fgcli.ops.fsr3 import (block_flow, dis_flow, fill_vector_field, luma8,
-                                    magnitude_priority, unpack_vector_field,
-                                    upsample_block_flow, vector_field)
+        from fgcli.kernels import op
+        from fgcli.ops.fsr3 import (dis_flow, fill_vector_field, luma8, magnitude_priority,
+                                    unpack_vector_field, upsample_block_flow, vector_field)
 
         c0, c1 = ctx["color0"], ctx["color1"]
         l0, l1 = luma8(c0), luma8(c1)
@@ -134,8 +135,8 @@ class FSR3OpticalFlow(Stage):
         if self.flow == "dis":
             f = dis_flow(l0, l1)
         else:
-            f = upsample_block_flow(block_flow(l0, l1, self.levels, 8, self.search,
-                                               self.median, self.subpixel), h, w, 8)
+            f = upsample_block_flow(op("block_flow", ctx)(l0, l1, self.levels, 8, self.search,
+                                                          self.median, self.subpixel), h, w, 8)
         if self.min_flow > 0:
             f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
         field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
