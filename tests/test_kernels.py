@@ -309,6 +309,41 @@ def test_block_flow(h, w, levels, block, search, median):
                                     True), ref)
 
 
+def _fsr3_inputs(h, w, seed):
+    g = torch.Generator().manual_seed(seed)
+    c0, c1 = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)
+    v = torch.randn(2, h, w, generator=g) * 4.0
+    v[:, : h // 2] = torch.round(v[:, : h // 2])  # integer vectors: taps on texel centres
+    d = torch.rand(1, h, w, generator=g) + 0.5
+    if h >= 5:
+        v[:, -2:] = 0.0  # static rows
+        v[0, 1, : w // 2] = 1e9  # huge vectors (sanitised, clamped onto the ring)
+        v[1, 2, :] = NAN
+        v[0, 3, 0] = INF
+        d[0, 0, :3] = INF  # sky
+        d[0, 0, 3:5] = NAN
+        d[0, 4, :2] = 0.0
+    return c0, c1, v, d
+
+
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
+def test_fsr3_scatters(h, w):
+    """FSR 3's footprint scatters (vector field with and without the secondary walk,
+    depth reconstruction): a max / min over the reference's own float positions, so equal
+    to the reference exactly."""
+    from fgcli.ops import fsr3
+
+    c0, c1, v, d = _fsr3_inputs(h, w, h * 7 + w)
+    hi = fsr3.depth_priority(d)
+    for a in (0.5, 0.3, 0.0, 1.0):
+        for sec, ms in ((True, 64), (True, 2), (False, 64)):
+            same("field", K.vector_field(c0, c1, v, hi, a, sec, ms),
+                 fsr3.vector_field(c0, c1, v, hi, a, sec, ms))
+        for k, r in zip(K.reconstruct_depths(d, v, a), fsr3.reconstruct_depths(d, v, a)):
+            same("depth", k, r)
+    assert torch.equal(K.vector_field(c0, c1, v * 0, hi), fsr3.vector_field(c0, c1, v * 0, hi))
+
+
 # ----------------------------------------------------------------------------- dispatch, CLI
 
 def test_dispatch_and_resolve():

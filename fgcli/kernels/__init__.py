@@ -29,6 +29,8 @@ KERNEL_OPS = {
     "crossfade": "fgcli.kernels.reference",
     "guiding_flows": "fgcli.ops.mvinterp",
     "block_flow": "fgcli.ops.fsr3",
+    "vector_field": "fgcli.ops.fsr3",
+    "reconstruct_depths": "fgcli.ops.fsr3",
 }
 
 

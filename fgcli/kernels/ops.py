@@ -314,7 +314,9 @@ _GROUPS = (
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
      lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
      lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5),
-     lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
+     lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8),
+     lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64)),
+     lambda i: reconstruct_depths(i["d"], i["mv"])),
 )
 
 
@@ -327,13 +329,14 @@ def _warm_group(k: int) -> None:
 def _cache_cold() -> bool:
     """True when some kernel has no on-disk cache index yet (a fresh install). A stale index
     (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
-    from fgcli.kernels import blend, fill, flow, splat, warp
+    from fgcli.kernels import blend, field, fill, flow, splat, warp
 
     kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
                fill.gap_fill_kernel,
                fill.extrap_fill_kernel, warp.warp_kernel, warp.mv_warp_kernel,
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
-               flow.block_search_kernel)
+               flow.block_search_kernel, field.field_scatter_kernel,
+               field.depth_scatter_kernel)
     try:
         import os
 
@@ -402,3 +405,48 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
         return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
                                subpixel)
+
+
+def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
+                 tap_threshold=0.05, length_bound=None):
+    """fgcli.ops.fsr3.vector_field: the entries by the reference's torch code, the
+    scatter (primary footprints and the secondary walk) by the numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if not _cpu(color0, color1, vec, hi):
+        return FS.vector_field(color0, color1, vec, hi, alpha, secondary, max_secondary,
+                               tap_threshold, length_bound)
+    from fgcli.kernels.field import field_scatter_kernel
+
+    vf, pos, hi, lo, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
+    n = (h + 2) * (w + 2)
+    buf = np.zeros((2, n), dtype=np.int64)
+    steps = 0
+    dist = d = np.zeros((2, 1), dtype=np.float32)
+    if secondary and max_secondary > 0 and vf.shape[1]:
+        dt = FS._length(vf * (1.0 - a))
+        steps = int(min(max_secondary, np.floor(float(dt.max()))))
+        if steps >= 1:
+            d = _a(vf / dt.clamp(min=1e-6))
+            dist = _a(dt)
+    sec = np.zeros((2, n), dtype=np.int64) if steps >= 1 else buf[:, :1]
+    field_scatter_kernel(_a(pos), _a(keys[0]), _a(keys[1]), dist.reshape(-1), d, h, w,
+                         F32(tap_threshold), steps, buf, sec)
+    return FS._crop(torch.from_numpy(buf), h, w).clone()
+
+
+def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
+    """fgcli.ops.fsr3.reconstruct_depths with the two footprint scatters in numba."""
+    from fgcli.ops import fsr3 as FS
+
+    if not _cpu(depth, mv):
+        return FS.reconstruct_depths(depth, mv, alpha, short_mv, tap_threshold)
+    from fgcli.kernels.field import depth_scatter_kernel
+
+    d, pos, (h, w) = FS.depth_sources(depth, mv, alpha, short_mv)
+    outs = []
+    for p in pos:
+        buf = np.full((h + 2) * (w + 2), np.inf, dtype=np.float32)
+        depth_scatter_kernel(_a(p), _a(d), h, w, F32(tap_threshold), buf)
+        outs.append(FS._crop(torch.from_numpy(buf)[None], h, w).clone())
+    return outs[0], outs[1]

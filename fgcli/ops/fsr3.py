@@ -90,6 +90,21 @@ def camera_kfov(projection=None, width: int = 16, height: int = 9,
 
 # ----------------------------------------------------------------------------- pass 1
 
+def depth_sources(depth, mv, alpha, short_mv=SHORT_MV):
+    """reconstruct_depths' sources: (depth (N,), [positions (2, N) at the previous frame,
+    at the interpolated frame], (h, w))."""
+    depth = check_tensor(depth, "depth", 1, allow_batch=False)
+    mv = check_tensor(mv, "mv", 2, allow_batch=False)
+    check_same(depth, "depth", (mv, "mv"))
+    a = check_alpha(alpha)
+    h, w = depth.shape[-2:]
+    d = sanitize_depth(depth).reshape(-1)
+    v = sanitize_mv(mv).reshape(2, -1)
+    v = v * (_length(v, keepdim=True) >= short_mv)
+    p = _positions(h, w, depth.device)
+    return d, [p + v * k for k in (1.0, 1.0 - a)], (h, w)
+
+
 def reconstruct_depths(depth: torch.Tensor, mv: torch.Tensor, alpha: float = 0.5,
                        short_mv: float = SHORT_MV, tap_threshold: float = TAP_THRESHOLD):
     """FSR 3 previous-frame and interpolated-frame depth reconstruction.
@@ -107,19 +122,11 @@ def reconstruct_depths(depth: torch.Tensor, mv: torch.Tensor, alpha: float = 0.5
     Returns:
         (depth_prev, depth_t), each (1, H, W): +inf where nothing landed (and sky).
     """
-    depth = check_tensor(depth, "depth", 1, allow_batch=False)
-    mv = check_tensor(mv, "mv", 2, allow_batch=False)
-    check_same(depth, "depth", (mv, "mv"))
-    a = check_alpha(alpha)
-    h, w = depth.shape[-2:]
-    d = sanitize_depth(depth).reshape(-1)
-    v = sanitize_mv(mv).reshape(2, -1)
-    v = v * (_length(v, keepdim=True) >= short_mv)
-    p = _positions(h, w, depth.device)
+    d, pos, (h, w) = depth_sources(depth, mv, alpha, short_mv)
     outs = []
-    for k in (1.0, 1.0 - a):
+    for p in pos:
         buf = torch.full(((h + 2) * (w + 2),), math.inf, device=depth.device)
-        for idx, m in _footprint(p + v * k, h, w, tap_threshold):
+        for idx, m in _footprint(p, h, w, tap_threshold):
             buf.scatter_reduce_(0, idx, torch.where(m, d, math.inf), reduce="amin")
         outs.append(_crop(buf[None], h, w).clone())
     return outs[0], outs[1]
@@ -160,6 +167,28 @@ def pack_entries(primary: bool, hi: torch.Tensor, lo: torch.Tensor, comp: torch.
     return (prio << 16) | (bits.to(torch.int64) & 0xFFFF)
 
 
+def field_entries(color0, color1, vec, hi, alpha):
+    """The per-source part of vector_field: (vf (2, N) sanitised vectors, pos (2, N) =
+    p + (1 - alpha) vf, hi (N,), lo (N,), keys [x, y] (N,) int64 primary entries,
+    (h, w, alpha))."""
+    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
+    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    check_same(color0, "color0", (color1, "color1"), (vec, "vec"))
+    a = check_alpha(alpha)
+    h, w = vec.shape[-2:]
+    v = sanitize_mv(vec)
+    s0, inside = backward_warp(luminance(sanitize_values(color0)), v)
+    l1 = luminance(sanitize_values(color1))
+    lo = agreement_priority(s0, l1) * inside
+    hi = hi.reshape(-1)
+    lo = lo.reshape(-1)
+    vf = v.reshape(2, -1)
+    pos = _positions(h, w, vec.device) + vf * (1.0 - a)
+    keys = [pack_entries(True, hi, lo, vf[c]) for c in (0, 1)]
+    return vf, pos, hi, lo, keys, (h, w, a)
+
+
 def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
                  hi: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
                  max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD,
@@ -186,23 +215,8 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
     Returns:
         (2, H, W) int64 packed entries (x, y); 0 = not written.
     """
-    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
-    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
-    vec = check_tensor(vec, "vec", 2, allow_batch=False)
-    check_same(color0, "color0", (color1, "color1"), (vec, "vec"))
-    a = check_alpha(alpha)
-    h, w = vec.shape[-2:]
-    dev = vec.device
-    v = sanitize_mv(vec)
-    s0, inside = backward_warp(luminance(sanitize_values(color0)), v)
-    l1 = luminance(sanitize_values(color1))
-    lo = agreement_priority(s0, l1) * inside
-    hi = hi.reshape(-1)
-    lo = lo.reshape(-1)
-    vf = v.reshape(2, -1)
-    p = _positions(h, w, dev)
-    pos = p + vf * (1.0 - a)
-    keys = [pack_entries(True, hi, lo, vf[c]) for c in (0, 1)]
+    vf, pos, hi, lo, keys, (h, w, a) = field_entries(color0, color1, vec, hi, alpha)
+    dev = vf.device
     buf = torch.zeros(2, (h + 2) * (w + 2), dtype=torch.int64, device=dev)
     for idx, m in _footprint(pos, h, w, tap_threshold):
         for c in (0, 1):

@@ -12,6 +12,7 @@ def _no_motion(facts):
 @register
 class FSR3Depth(Stage):
     name = "fsr3_depth"
+    uses_kernels = True
     help = ("FSR 3 depth reconstruction: frame 1's dilated depth splatted over the bilinear "
             "footprint of p + mv (previous frame) and p + (1 - alpha) mv (interpolated frame), "
             "atomic min; vectors < 0.1 px zeroed.")
@@ -32,15 +33,17 @@ class FSR3Depth(Stage):
         return {"depth_prev_r": d, "depth_t": d}
 
     def run(self, ctx):
-        from fgcli.ops.fsr3 import reconstruct_depths
+        from fgcli.kernels import op
 
-        dp, dt = reconstruct_depths(ctx["depth1_d"], ctx["mv1_d"], ctx["alpha"], self.short_mv)
+        dp, dt = op("reconstruct_depths", ctx)(ctx["depth1_d"], ctx["mv1_d"], ctx["alpha"],
+                                               self.short_mv)
         return {"depth_prev_r": dp, "depth_t": dt}
 
 
 @register
 class FSR3GameField(Stage):
     name = "fsr3_game_field"
+    uses_kernels = True
     help = ("FSR 3 game-MV field of the interpolated frame: 16-bit priority (primary flag, "
             "10-bit depth priority, 5-bit luminance agreement) | half-float component, atomic "
             "max into the bilinear footprint of p + (1 - alpha) mv; secondary entries stepping "
@@ -70,8 +73,10 @@ class FSR3GameField(Stage):
                                          for c in (0, 1)])}
 
     def run(self, ctx):
-        from fgcli.ops.fsr3 import depth_priority, vector_field
+        from fgcli.kernels import op
+        from fgcli.ops.fsr3 import depth_priority
 
+        vector_field = op("vector_field", ctx)
         hi = depth_priority(ctx["depth1_d"])
         # the per-frame facts' largest vector component (GPU path) bounds the walk
         m = (ctx.get("facts") or {}).get("mv1_absmax")
@@ -127,7 +132,7 @@ class FSR3OpticalFlow(Stage):
         from fgcli.ops._util import reads_back
         from fgcli.kernels import op
         from fgcli.ops.fsr3 import (dis_flow, fill_vector_field, luma8, magnitude_priority,
-                                    unpack_vector_field, upsample_block_flow, vector_field)
+                                    unpack_vector_field, upsample_block_flow)
 
         c0, c1 = ctx["color0"], ctx["color1"]
         l0, l1 = luma8(c0), luma8(c1)
@@ -139,7 +144,8 @@ class FSR3OpticalFlow(Stage):
                                                           self.median, self.subpixel), h, w, 8)
         if self.min_flow > 0:
             f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
-        field = vector_field(c0, c1, f, magnitude_priority(f), ctx["alpha"], secondary=False)
+        field = op("vector_field", ctx)(c0, c1, f, magnitude_priority(f), ctx["alpha"],
+                                        secondary=False)
         vec, prio, valid = unpack_vector_field(field)
         if not reads_back(valid) or not bool(valid.all()):
             vec, _ = fill_vector_field(vec, prio, valid)
