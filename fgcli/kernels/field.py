@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from fgcli.kernels._common import F32, INLINE
+from fgcli.kernels._common import F32, INLINE, clamp_b
 
 _PRIMARY = np.int64(1) << np.int64(31)
 
@@ -20,18 +20,18 @@ _PRIMARY = np.int64(1) << np.int64(31)
 def _taps(px, py, h, w, thr):
     """The reference's _footprint for one position: base column/row in the (h+2) x (w+2)
     buffer and the four taps' write flags (weight > thr), order (0,0), (1,0), (0,1), (1,1)."""
-    x = min(max(px, F32(-2.0)), F32(w + 1.0))
-    y = min(max(py, F32(-2.0)), F32(h + 1.0))
+    x = clamp_b(px, F32(-2.0), F32(w + 1.0))
+    y = clamp_b(py, F32(-2.0), F32(h + 1.0))
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx = x - x0
     fy = y - y0
     ex = F32(1.0) - fx
     ey = F32(1.0) - fy
-    xa = np.int64(min(max(x0, F32(-1.0)), F32(w))) + 1
-    xb = np.int64(min(max(x0 + F32(1.0), F32(-1.0)), F32(w))) + 1
-    ya = np.int64(min(max(y0, F32(-1.0)), F32(h))) + 1
-    yb = np.int64(min(max(y0 + F32(1.0), F32(-1.0)), F32(h))) + 1
+    xa = np.int64(clamp_b(x0, F32(-1.0), F32(w))) + 1
+    xb = np.int64(clamp_b(x0 + F32(1.0), F32(-1.0), F32(w))) + 1
+    ya = np.int64(clamp_b(y0, F32(-1.0), F32(h))) + 1
+    yb = np.int64(clamp_b(y0 + F32(1.0), F32(-1.0), F32(h))) + 1
     return xa, xb, ya, yb, ex * ey > thr, fx * ey > thr, ex * fy > thr, fx * fy > thr
 
 
@@ -70,8 +70,8 @@ def field_scatter_kernel(pos, kx, ky, dist, d, h, w, thr, steps, buf, sec):
             kf = F32(k)
             qx = pos[0, i] - d[0, i] * kf
             qy = pos[1, i] - d[1, i] * kf
-            xi = np.int64(min(max(np.floor(qx), F32(-1.0)), F32(w))) + 1
-            yi = np.int64(min(max(np.floor(qy), F32(-1.0)), F32(h))) + 1
+            xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+            yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
             if xi < 1 or xi > w or yi < 1 or yi > h:
                 continue
             q = yi * w2 + xi
