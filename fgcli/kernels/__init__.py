@@ -31,6 +31,16 @@ KERNEL_OPS = {
     "block_flow": "fgcli.ops.fsr3",
     "vector_field": "fgcli.ops.fsr3",
     "reconstruct_depths": "fgcli.ops.fsr3",
+    # gffe: the ops whose camera geometry (unproject / project) runs in fgcli.kernels.geom
+    "unproject": "fgcli.ops.gffe",
+    "project": "fgcli.ops.gffe",
+    "track_history": "fgcli.ops.gffe",
+    "dilate_trajectory": "fgcli.ops.gffe",
+    "warp_positions": "fgcli.ops.gffe",
+    "collect_background": "fgcli.ops.gffe",
+    "project_background": "fgcli.ops.gffe",
+    "project_border": "fgcli.ops.gffe",
+    "reproject_fill": "fgcli.ops.gffe",
 }
 
 

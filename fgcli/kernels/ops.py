@@ -316,7 +316,8 @@ _GROUPS = (
      lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5),
      lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8),
      lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64)),
-     lambda i: reconstruct_depths(i["d"], i["mv"])),
+     lambda i: reconstruct_depths(i["d"], i["mv"]),
+     lambda i: _warm_gffe(i["d"])),
 )
 
 
@@ -337,6 +338,9 @@ def _cache_cold() -> bool:
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
                flow.block_search_kernel, field.field_scatter_kernel,
                field.depth_scatter_kernel)
+    from fgcli.kernels import geom
+
+    kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
     try:
         import os
 
@@ -450,3 +454,153 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
         depth_scatter_kernel(_a(p), _a(d), h, w, F32(tap_threshold), buf)
         outs.append(FS._crop(torch.from_numpy(buf)[None], h, w).clone())
     return outs[0], outs[1]
+
+
+# ----------------------------------------------------------------------------- gffe
+
+from fgcli.ops import gffe as G  # noqa: E402
+
+
+def _f32(*xs) -> tuple:
+    """float64 coefficients -> float32 scalars (as torch rounds a Python float scalar)."""
+    return tuple(F32(float(x)) for x in xs)
+
+
+def _unproject_coefs(cam, size):
+    """unproject_kernel's (kx, ky, A, M) from a camera, computed as fgcli.ops.gffe.unproject
+    does in float64."""
+    H, W = size
+    v, p = G._mats(cam)
+    ip = np.linalg.inv(p)
+    ivm = np.linalg.inv(v)
+    a = []
+    for zn in (-1.0, 1.0):
+        c = ip @ np.array([0.0, 0.0, zn, 1.0])
+        for i in range(4):
+            a += [ip[i, 0], ip[i, 1], c[i]]
+    return F32(2.0 / W), F32(2.0 / H), _f32(*a), _f32(*ivm[:3].reshape(-1))
+
+
+def _project_coefs(cam, size):
+    """project_kernel's (V, P, hw, hh), as fgcli.ops.gffe.project computes them."""
+    H, W = size
+    v, p = G._mats(cam)
+    m = p @ v
+    return _f32(*v[2]), _f32(*m[[0, 1, 3]].reshape(-1)), F32(0.5 * W), F32(0.5 * H)
+
+
+def _samples(depth, px, py):
+    """unproject_kernel's px (h, w) or (1, w) and py (h, w) or (h, 1) numpy arrays, or
+    None where the kernel does not take these (the reference runs)."""
+    h, w = depth.shape[-2:]
+    if px is None and py is None:
+        return _grid_half(h, w)
+    if px is None or py is None or not all(
+            isinstance(t, torch.Tensor) and t.device.type == "cpu" and t.dtype == torch.float32
+            and tuple(t.shape) == (h, w) for t in (px, py)):
+        return None
+    qx = px[:1] if px.stride(0) == 0 else px
+    qy = py[:, :1] if py.stride(1) == 0 else py
+    return _a(qx), _a(qy)
+
+
+@functools.lru_cache(maxsize=8)
+def _grid_half(h: int, w: int):
+    """Pixel centres (x + 0.5 as a (1, w) row, y + 0.5 as an (h, 1) column)."""
+    a = aux(h, w, "cpu")
+    return _a(a["xh"].reshape(1, w)), _a(a["yh"].reshape(h, 1))
+
+
+def _geom_ok(depth, size) -> bool:
+    if not (isinstance(depth, torch.Tensor) and depth.device.type == "cpu"
+            and depth.dtype == torch.float32 and depth.dim() == 3 and depth.shape[0] == 1
+            and depth.numel() > 0):
+        return False
+    return size is None or len(size) == 2
+
+
+def _sky_rows(nsky, ss):
+    """(y0, torch.sqrt of ss's rows y0 .. y1) for the rows that have sky pixels, or None:
+    the sky directions' norms by the function the reference calls (MKL's sqrt is not
+    IEEE's; fgcli.kernels.geom)."""
+    rows = np.flatnonzero(nsky)
+    if rows.size == 0:
+        return None
+    y0, y1 = int(rows[0]), int(rows[-1]) + 1
+    nrm = torch.from_numpy(ss[y0:y1])
+    torch.sqrt(nrm, out=nrm)
+    return y0, ss[y0:y1]
+
+
+def unproject(depth, cam, px=None, py=None, size=None):
+    """fgcli.ops.gffe.unproject by geom.unproject_kernel (+ unproject_sky_kernel where
+    there is sky)."""
+    s = _samples(depth, px, py) if _geom_ok(depth, size) else None
+    if s is None:
+        return G.unproject(depth, cam, px, py, size)
+    from fgcli.kernels.geom import unproject_kernel, unproject_sky_kernel
+
+    h, w = depth.shape[-2:]
+    kx, ky, A, M = _unproject_coefs(cam, size or (h, w))
+    out = _empty(4, h, w)
+    d = _a(depth)[0]
+    ss = np.empty((h, w), dtype=np.float32)
+    nsky = np.empty(h, dtype=np.int64)
+    o = out.numpy()
+    unproject_kernel(d, s[0], s[1], kx, ky, A, M, o, ss, nsky)
+    sky = _sky_rows(nsky, ss)
+    if sky is not None:
+        unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o)
+    return out
+
+
+def project(X, cam, size):
+    """fgcli.ops.gffe.project by geom.project_kernel."""
+    if not (isinstance(X, torch.Tensor) and X.device.type == "cpu"
+            and X.dtype == torch.float32 and X.dim() >= 2 and X.shape[0] == 4
+            and X.numel() > 0):
+        return G.project(X, cam, size)
+    from fgcli.kernels.geom import project_kernel
+
+    shape = tuple(X.shape[1:])
+    x = X.reshape(4, shape[0], -1) if X.dim() >= 3 else X.reshape(4, 1, -1)
+    V, P, hw, hh = _project_coefs(cam, size)
+    h, w = x.shape[1:]
+    px, py, d = _empty(h, w), _empty(h, w), _empty(h, w)
+    ok = _empty(h, w, dtype=torch.bool)
+    project_kernel(_a(x), V, P, hw, hh, px.numpy(), py.numpy(), d.numpy(), ok.numpy())
+    return px.view(shape), py.view(shape), d.view(shape), ok.view(shape)
+
+
+def _warm_gffe(d) -> None:
+    """warm(): gffe's geometry kernels (a sky row: the second pass too)."""
+    d = d.clone()
+    d[0, 0] = float("inf")
+    cam = (np.eye(4), np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -1.0, -0.2],
+                                [0, 0, -1.0, 0]]))
+    project(unproject(d, cam), cam, tuple(d.shape[-2:]))
+
+
+# the gffe ops with these kernels for their camera geometry (the ops' ``geom`` argument;
+# every other step of them stays the reference's torch code)
+GEOM = G.Geometry(unproject, project)
+
+
+def _with_geom(name: str):
+    ref = getattr(G, name)
+
+    @functools.wraps(ref)
+    def op(*args, **kw):
+        kw.setdefault("geom", GEOM)
+        return ref(*args, **kw)
+
+    return op
+
+
+track_history = _with_geom("track_history")
+dilate_trajectory = _with_geom("dilate_trajectory")
+warp_positions = _with_geom("warp_positions")
+collect_background = _with_geom("collect_background")
+project_background = _with_geom("project_background")
+project_border = _with_geom("project_border")
+reproject_fill = _with_geom("reproject_fill")

@@ -14,6 +14,7 @@ OpenGL: view looks down -Z). Pixel coordinates: centres at integer + 0.5, x righ
 from __future__ import annotations
 
 import math
+from typing import Callable, NamedTuple
 
 import numpy as np
 import torch
@@ -221,6 +222,17 @@ def project(X: torch.Tensor, cam, size: tuple[int, int]):
     return px, py, depth, ok
 
 
+class Geometry(NamedTuple):
+    """The implementation of unproject / project the ops below use (their ``geom``
+    argument): None = these torch functions (the reference, and the GPU path);
+    fgcli.kernels.ops.GEOM = the numba kernels (bit-identical)."""
+    unproject: Callable
+    project: Callable
+
+
+TORCH_GEOM = Geometry(unproject, project)
+
+
 # ----------------------------------------------------------------------------- history
 
 def _sample_nearest_idx(px, py, h, w):
@@ -236,7 +248,8 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
                   depth0: torch.Tensor | None = None, prev: torch.Tensor | None = None,
                   k: int = 2, threshold: float = 0.5,
                   first_frame: str = "mv", lookup: str = "match",
-                  match_tol: float = 0.1) -> tuple[torch.Tensor, torch.Tensor]:
+                  match_tol: float = 0.1, geom: Geometry | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """Algorithm 1 (history tracking with static test).
 
     For each pixel x: p = unproject(x, D_t, C_t); x^ = project(p, C_t-1) (where the pixel
@@ -267,6 +280,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
         depth0: (1, H, W) previous depth or None. prev: (k, 4, H, W) previous trajectory
             or None (then older positions equal P'_0).
         k: trajectory length (>= 2). threshold: static-test distance in pixels.
+        geom: unproject / project (None: the torch functions; see Geometry).
 
     Returns:
         (traj (k, 4, H, W) homogeneous world positions, newest first; dynamic (1, H, W) bool).
@@ -277,7 +291,8 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
         raise ValueError(f"k: expected >= 2, got {k}")
     check_choice(lookup, "lookup", ("match", "nearest"))
     h, w = depth1.shape[-2:]
-    p = unproject(depth1, cam1)
+    g = geom or TORCH_GEOM
+    p = g.unproject(depth1, cam1)
     traj = p[None].repeat(k, 1, 1, 1)
     dyn = torch.zeros(1, h, w, dtype=torch.bool, device=depth1.device)
     if cam0 is None or (depth0 is None and prev is None):
@@ -289,13 +304,13 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
             xp, yp = a["xh"] + mv[0], a["yh"] + mv[1]
             moving = (mv[0] ** 2 + mv[1] ** 2 > threshold * threshold) & (p[3] > 0)
             if not reads_back(moving) or bool(moving.any()):
-                p1 = unproject(depth1, cam1, xp, yp, (h, w))
+                p1 = g.unproject(depth1, cam1, xp, yp, (h, w))
                 m = (moving & (p1[3] == p[3]))[None]
                 for i in range(1, k):
                     traj[i] = torch.where(m, p1, p)
                 dyn = moving[None]  # moving pixels stay out of the background layers
         return traj, dyn
-    xh, yh, _, ok = project(p, cam0, (h, w))
+    xh, yh, _, ok = g.project(p, cam0, (h, w))
     a = aux(h, w, depth1.device)
     mv = torch.nan_to_num(mv1, nan=0.0).clamp(-OFF, OFF)
     xp = a["xh"] + mv[0]
@@ -310,7 +325,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     # P'_0 at x': exact sub-pixel position, depth of the nearest pixel
     if depth0 is not None:
         d0 = gather_pixels(check_tensor(depth0, "depth0", 1, allow_batch=False), idx).view(1, h, w)
-        p1 = unproject(d0, cam0, xp, yp, (h, w))
+        p1 = g.unproject(d0, cam0, xp, yp, (h, w))
     else:
         p1 = gather_pixels(prev[0], idx).view(4, h, w)
     olds = [p1]
@@ -320,7 +335,7 @@ def track_history(depth1: torch.Tensor, mv1: torch.Tensor, cam1, cam0=None,
     if fallback is not None and (not reads_back(fallback) or bool(fallback.any())):
         # no pixel near x' shows this surface (a silhouette: x' fell on the surface behind
         # or in front): it was at x' at its current view depth (screen-space motion)
-        pf = unproject(depth1, cam0, xp, yp, (h, w))
+        pf = g.unproject(depth1, cam0, xp, yp, (h, w))
         p1 = torch.where(fallback[None], pf, p1)
         olds = [torch.where(fallback[None], pf, q) for q in olds]
     same_kind = (p1[3] == p[3]) & (p1[3] > 0)
@@ -377,7 +392,8 @@ def _match_idx(depth0, depth1, xp, yp, idx, use, tol):
 
 
 def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
-                      dynamic: torch.Tensor | None = None) -> torch.Tensor:
+                      dynamic: torch.Tensor | None = None,
+                      geom: Geometry | None = None) -> torch.Tensor:
     """fgen: Mob-FGSR's / FSR 2's 3x3 nearest-depth dilation in world space. Each pixel x
     takes the depth of the nearest-depth pixel n of its window (fgcli.ops.splat.
     dilate_nearest_depth, same tie rules; it is unprojected on x's own ray) and moves as n
@@ -402,7 +418,8 @@ def dilate_trajectory(traj: torch.Tensor, depth1: torch.Tensor, cam1,
     if dynamic is not None:  # only static pixels, only toward dynamic winners
         both = both & (gather_pixels(dynamic.float(), idx).view(1, h, w) > 0.5) & ~dynamic
     out = traj.clone()
-    pd = unproject(dd, cam1)  # x also takes n's depth (its place in the splat)
+    # x also takes n's depth (its place in the splat)
+    pd = (geom or TORCH_GEOM).unproject(dd, cam1)
     p0 = torch.where(both & (pd[3] > 0)[None], pd, p0)
     out[0] = p0
     for i in range(1, k):
@@ -464,7 +481,7 @@ def _splat_min(tx: torch.Tensor, ty: torch.Tensor, key_depth: torch.Tensor, use:
 
 
 def warp_positions(color1: torch.Tensor, positions: torch.Tensor, cam_x, filter: str = "bilinear",
-                   crack_fill: bool = True):
+                   crack_fill: bool = True, geom: Geometry | None = None):
     """Forward warp of frame 1's fragments to their estimated positions seen by the
     extrapolated camera; nearest depth wins (fgcli.ops.splat.splat_motion's packed keys).
 
@@ -484,7 +501,7 @@ def warp_positions(color1: torch.Tensor, positions: torch.Tensor, cam_x, filter:
     color1 = check_tensor(color1, "color1", 3, allow_batch=False)
     check_choice(filter, "filter", ("bilinear", "nearest"))
     h, w = color1.shape[-2:]
-    px, py, dn, ok = project(positions, cam_x, (h, w))
+    px, py, dn, ok = (geom or TORCH_GEOM).project(positions, cam_x, (h, w))
     a = aux(h, w, color1.device)
     dx = torch.where(ok, px - a["xh"], torch.full_like(px, OFF))
     dy = torch.where(ok, py - a["yh"], torch.full_like(py, OFF))
@@ -531,13 +548,14 @@ def empty_layer(h, w, dev):
             "valid": torch.zeros(1, h, w, dtype=torch.bool, device=dev)}
 
 
-def _layer_fragments(layer, cam_from, cam_to, size, scale):
+def _layer_fragments(layer, cam_from, cam_to, size, scale, geom=None):
     """Reproject a layer's valid fragments (grid cells `scale` full pixels wide) to cam_to."""
     h, w = layer["depth"].shape[-2:]
     cx, cy = _centres(h, w, scale, layer["depth"].device)
     d = torch.where(layer["valid"], layer["depth"], torch.zeros_like(layer["depth"]))
-    X = unproject(d, cam_from, cx, cy, size)
-    px, py, dn, ok = project(X, cam_to, size)
+    g = geom or TORCH_GEOM
+    X = g.unproject(d, cam_from, cx, cy, size)
+    px, py, dn, ok = g.project(X, cam_to, size)
     return px, py, dn, ok & layer["valid"][0]
 
 
@@ -563,7 +581,7 @@ def _edge_pixels(depth: torch.Tensor, dynamic: torch.Tensor, depth_tol: float) -
 def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch.Tensor, cam1,
                        prev_layers: list | None = None, cam_prev=None,
                        depth_tol: float = 0.02, edge_guard: bool = False,
-                       layer1_scale: int = 2) -> list:
+                       layer1_scale: int = 2, geom: Geometry | None = None) -> list:
     """Layered background collection (Sec. 4.2, Fig. 5), L = 2: layer 0 full size, layer 1
     half width and height (a quarter of the pixels). Layers are registered to cam1's view.
 
@@ -602,7 +620,7 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     tol = 1.0 + float(depth_tol)
     # ---- level 0 of the previous buffer
     p0 = prev_layers[0]
-    px, py, dn, ok = _layer_fragments(p0, cam_prev, cam1, (H, W), 1.0)
+    px, py, dn, ok = _layer_fragments(p0, cam_prev, cam1, (H, W), 1.0, geom)
     tx, ty = torch.floor(px), torch.floor(py)
     idx, inside = _sample_nearest_idx(px, py, H, W)
     inside = inside.view(H, W) & ok
@@ -632,7 +650,7 @@ def collect_background(color1: torch.Tensor, depth1: torch.Tensor, static: torch
     # ---- level 1 of the previous buffer: Case 1 into B_1 when it lies behind B_0
     p1 = prev_layers[1]
     sp = _layer_scale(p1, H, W)
-    px, py, dn, ok = _layer_fragments(p1, cam_prev, cam1, (H, W), sp)
+    px, py, dn, ok = _layer_fragments(p1, cam_prev, cam1, (H, W), sp, geom)
     idx, inside = _sample_nearest_idx(px, py, H, W)
     inside = inside.view(*px.shape) & ok
     at_valid = gather_pixels(l0["valid"].float(), idx).view(*px.shape) > 0.5
@@ -698,7 +716,8 @@ def _sample_layer(layer, src, px, py, want, depth_tol: float = 0.05):
     return out
 
 
-def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter: str = "nearest"):
+def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter: str = "nearest",
+                       geom: Geometry | None = None):
     """Background projection: the collected layers (registered to cam_bg) seen by the
     extrapolated camera; only the ``holes`` (1, H, W) bool of the warped frame are filled.
     A hole takes the nearest fragment of either layer (layer 1 lands on its half-size
@@ -713,12 +732,12 @@ def project_background(layers: list, cam_bg, cam_x, holes: torch.Tensor, filter:
     h2, w2 = _half(H, W)
     dev = holes.device
     l0, l1 = layers
-    px, py, dn, ok = _layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0)
+    px, py, dn, ok = _layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0, geom)
     s0, d0 = _splat_min(torch.floor(px), torch.floor(py), dn, ok, H, W)
     sc = _layer_scale(l1, H, W)
     if sc == 1.0:
         h2, w2 = H, W
-    px1, py1, dn1, ok1 = _layer_fragments(l1, cam_bg, cam_x, (H, W), sc)
+    px1, py1, dn1, ok1 = _layer_fragments(l1, cam_bg, cam_x, (H, W), sc, geom)
     s1, d1 = _splat_min(torch.floor(px1 / sc), torch.floor(py1 / sc), dn1, ok1, h2, w2)
     if sc == 2.0:
         s1 = s1.repeat_interleave(2, 0).repeat_interleave(2, 1)[:H, :W]
@@ -780,7 +799,7 @@ def entering_surface(filled: torch.Tensor, depth: torch.Tensor, color1: torch.Te
     return sanitize_values(color1), d1, take
 
 
-def project_border(border: dict, cam1, cam_x, holes: torch.Tensor):
+def project_border(border: dict, cam1, cam_x, holes: torch.Tensor, geom: Geometry | None = None):
     """The overscan border of frame 1 (Frame.overscan: the rendered pixels outside the
     display window) seen by the extrapolated camera: GFFE's use of a larger rendering
     window (Sec. 4.3), the border's fragments splatted (static, nearest depth wins) into
@@ -799,8 +818,9 @@ def project_border(border: dict, cam1, cam_x, holes: torch.Tensor):
     ring = (cx < 0) | (cx >= W) | (cy < 0) | (cy >= H)
     d = d_ext[0]
     use = ring & torch.isfinite(d) & (d > 0)
-    X = unproject(torch.where(use, d, torch.zeros_like(d))[None], cam1, cx, cy, (H, W))
-    px, py, dn, ok = project(X, cam_x, (H, W))
+    g = geom or TORCH_GEOM
+    X = g.unproject(torch.where(use, d, torch.zeros_like(d))[None], cam1, cx, cy, (H, W))
+    px, py, dn, ok = g.project(X, cam_x, (H, W))
     src, dep = _splat_min(torch.floor(px), torch.floor(py), dn, ok & use, H, W)
     s = src.view(H, W)
     hit = s >= 0
@@ -960,7 +980,8 @@ def vector_rule_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tens
 
 def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor, color1: torch.Tensor,
                    depth1: torch.Tensor, cam1, cam_x, depth_tol: float = 0.05,
-                   offscreen: str = "clamp", border: dict | None = None):
+                   offscreen: str = "clamp", border: dict | None = None,
+                   geom: Geometry | None = None):
     """Holes of the extrapolated frame read frame 1 through a proxy surface: the hole pixel's
     ray of cam_x at ``depth`` (the far-biased push-pull depth of its surroundings, i.e. the
     background) projected into frame 1, sampled bilinearly there, where frame 1 shows a
@@ -979,8 +1000,9 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     check_choice(offscreen, "offscreen", ("clamp", "skip"))
     H, W = color.shape[-2:]
     a = aux(H, W, color.device)
-    X = unproject(depth, cam_x)
-    px, py, _, ok = project(X, cam1, (H, W))
+    g = geom or TORCH_GEOM
+    X = g.unproject(depth, cam_x)
+    px, py, _, ok = g.project(X, cam1, (H, W))
     if border is not None:
         return _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol,
                                  offscreen)

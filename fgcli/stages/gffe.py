@@ -1,6 +1,8 @@
 """GFFE geometry-aware extrapolation (GAE) stages (pipelines/gffe-extrap.toml): history
 tracking, camera extrapolation + adaptive window, position estimation, warp, background
-collection and projection, hole fill. Thin wrappers over fgcli.ops.gffe.
+collection and projection, hole fill. Thin wrappers over fgcli.ops.gffe; with --backend
+numba the ops that unproject / project pixels get them from the numba kernels
+(fgcli.kernels.geom, bit-identical), through op().
 
 Recurrent state (trajectories, background layers, their camera) lives in the runner's
 RunState (ctx["state"].store["gffe"]), updated once per rendered frame (the first job of a
@@ -10,6 +12,7 @@ Without a RunState (a single call), the state lives for that call only.
 from __future__ import annotations
 
 from fgcli.errors import InputError
+from fgcli.kernels import op
 from fgcli.stages.base import Option, Stage, register
 
 KEY = "gffe"
@@ -71,6 +74,7 @@ class GffeHistory(Stage):
                "which no neighbour of x' counts as the same surface", range=(0.0, 1e6)),
     )
     history = None  # the trajectories carry over every earlier rendered frame
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         _need_camera(ctx, self.name)
@@ -94,8 +98,6 @@ class GffeHistory(Stage):
         return {"traj": None, "dynamic": dyn}
 
     def run(self, ctx):
-        from fgcli.ops.gffe import track_history
-
         s = _store(ctx)
         prev = s.get("traj")
         d1 = ctx["depth1"]
@@ -104,9 +106,9 @@ class GffeHistory(Stage):
             prev = None
         if ctx.get("depth0") is None and prev is None:
             cam0 = None
-        traj, dyn = track_history(d1, ctx["mv1"], ctx["camera1"], cam0, ctx.get("depth0"),
-                                  prev, self.k, self.threshold, self.first_frame,
-                                  self.lookup, self.match_tol)
+        traj, dyn = op("track_history", ctx)(d1, ctx["mv1"], ctx["camera1"], cam0,
+                                             ctx.get("depth0"), prev, self.k, self.threshold,
+                                             self.first_frame, self.lookup, self.match_tol)
         s.update(hist_frame=_frame_id(ctx), traj=traj, dynamic=dyn, hist_camera=ctx["camera1"])
         return {"traj": traj, "dynamic": dyn}
 
@@ -201,6 +203,7 @@ class GffePosition(Stage):
                       "beside a nearer dynamic one (a moving object's rim and contact "
                       "shadow); full: every pixel (Mob-FGSR's rule; worse on held-out "
                       "scenes, docs/results.md)", choices=("off", "dynamic", "full")))
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
@@ -221,15 +224,15 @@ class GffePosition(Stage):
         return {"positions": None if t is None else t[0]}
 
     def run(self, ctx):
-        from fgcli.ops.gffe import dilate_trajectory, estimate_positions
+        from fgcli.ops.gffe import estimate_positions
 
         traj = ctx["traj"]
         if traj is None:  # every pixel static (the history stage had no work)
             return self.skip(ctx)
         d1 = ctx.get("depth1")
         if self.dilate != "off" and d1 is not None and ctx.get("camera1") is not None:
-            traj = dilate_trajectory(traj, d1, ctx["camera1"],
-                                     ctx.get("dynamic") if self.dilate == "dynamic" else None)
+            traj = op("dilate_trajectory", ctx)(
+                traj, d1, ctx["camera1"], ctx.get("dynamic") if self.dilate == "dynamic" else None)
         pos = estimate_positions(traj, ctx["alpha"], self.motion)
         return {"positions": pos}
 
@@ -248,6 +251,7 @@ class GffeWarp(Stage):
                       "(the paper's splat)", choices=("bilinear", "nearest")),
                Option("crack_fill", "bool", True, "fill one-pixel splat cracks inside nearer "
                       "surfaces (Mob-FGSR's 2x2 rule, shared gap_fill op; fgen addition)"))
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         if ctx.get("positions") is None and not facts.get("camera_moved", False):
@@ -265,12 +269,11 @@ class GffeWarp(Stage):
                 "valid": torch.ones(1, *c.shape[-2:], dtype=torch.bool, device=c.device)}
 
     def run(self, ctx):
-        from fgcli.ops.gffe import unproject, warp_positions
-
         pos = ctx.get("positions")
         if pos is None:
-            pos = unproject(ctx["depth1"], ctx["camera1"])
-        out = warp_positions(ctx["color1"], pos, ctx["camera_x"], self.filter, self.crack_fill)
+            pos = op("unproject", ctx)(ctx["depth1"], ctx["camera1"])
+        out = op("warp_positions", ctx)(ctx["color1"], pos, ctx["camera_x"], self.filter,
+                                        self.crack_fill)
         return {"color": out["color"], "depth": out["depth"], "mv": out["mv"],
                 "valid": out["valid"]}
 
@@ -293,6 +296,7 @@ class GffeBackgroundCollect(Stage):
                       "layer 0) in full pixels per side: 2 = quarter size (the paper's "
                       "L = 2), 1 = full size (fgen)", range=(1, 2)))
     history = None
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         s = _store(ctx)
@@ -313,16 +317,15 @@ class GffeBackgroundCollect(Stage):
         return {"bg": s.get("bg")}
 
     def run(self, ctx):
-        from fgcli.ops.gffe import collect_background
-
         s = _store(ctx)
         prev, cam_prev = s.get("bg"), s.get("bg_camera")
         d1 = ctx["depth1"]
         if prev is not None and (tuple(prev[0]["depth"].shape[-2:]) != tuple(d1.shape[-2:]) or
                                  tuple(prev[1]["depth"].shape[-2:]) != _l1_shape(d1, self)):
             prev = None
-        bg = collect_background(ctx["color1"], d1, ~ctx["dynamic"], ctx["camera1"], prev,
-                                cam_prev, self.depth_tol, self.edge_guard, self.layer1_scale)
+        bg = op("collect_background", ctx)(ctx["color1"], d1, ~ctx["dynamic"], ctx["camera1"],
+                                           prev, cam_prev, self.depth_tol, self.edge_guard,
+                                           self.layer1_scale)
         s.update(bg=bg, bg_camera=ctx["camera1"], bg_frame=_frame_id(ctx))
         return {"bg": bg}
 
@@ -387,6 +390,7 @@ class GffeBackgroundProject(_HoleStage):
                Option("emerging", "bool", False, "fgen, with entering: also a nearer surface "
                       "that came out from behind a still nearer one (its vector leads onto "
                       "that one)"))
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         if ctx.get("bg") is None:
@@ -396,13 +400,11 @@ class GffeBackgroundProject(_HoleStage):
     def run(self, ctx):
         import torch
 
-        from fgcli.ops.gffe import project_background
-
         if ctx.get("bg") is None:
             return self.skip(ctx)
         holes = ~ctx["valid"]
-        c, d, m, filled = project_background(ctx["bg"], ctx["camera1"], ctx["camera_x"], holes,
-                                            self.filter)
+        c, d, m, filled = op("project_background", ctx)(ctx["bg"], ctx["camera1"],
+                                                        ctx["camera_x"], holes, self.filter)
         if self.entering and ctx.get("mv1") is not None:
             from fgcli.ops.gffe import entering_surface
 
@@ -439,6 +441,7 @@ class GffeHoleFill(Stage):
                "splat the border's own fragments into the holes before the push-pull and "
                "the reprojection (GFFE's larger rendering window)"),
     )
+    uses_kernels = True
 
     def needed(self, ctx, facts):
         from fgcli.ops._util import reads_back
@@ -453,22 +456,23 @@ class GffeHoleFill(Stage):
     def run(self, ctx):
         import torch
 
-        from fgcli.ops.gffe import project_border, push_pull_fill, reproject_fill
+        from fgcli.ops.gffe import push_pull_fill
 
         v, color, depth, mv0 = ctx["valid"], ctx["color"], ctx["depth"], ctx["mv"]
         border = ctx.get("window_border")
         cams = ctx.get("camera1") is not None and ctx.get("camera_x") is not None
         if border is not None and cams and self.border_splat:
             # the rendered border first: its own fragments, where they land in a hole
-            bc, bd, bm, bf = project_border(border, ctx["camera1"], ctx["camera_x"], ~v)
+            bc, bd, bm, bf = op("project_border", ctx)(border, ctx["camera1"], ctx["camera_x"],
+                                                       ~v)
             color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
             mv0, v = torch.where(bf, bm, mv0), v | bf
         c, d = push_pull_fill(color, v, depth, self.far_bias)
         mv = torch.where(v, mv0, torch.zeros_like(mv0))
         if self.mode == "reproject" and cams:
-            c, flow, took = reproject_fill(c, v, d, ctx["color1"], ctx["depth1"],
-                                           ctx["camera1"], ctx["camera_x"],
-                                           offscreen=self.offscreen, border=border)
+            c, flow, took = op("reproject_fill", ctx)(c, v, d, ctx["color1"], ctx["depth1"],
+                                                      ctx["camera1"], ctx["camera_x"],
+                                                      offscreen=self.offscreen, border=border)
             mv = torch.where(took, flow, mv)
         # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
         return {"color": c, "depth": d, "mv": mv, "holes": (~v).sum()}

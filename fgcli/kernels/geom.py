@@ -1,0 +1,222 @@
+"""GFFE's camera geometry (fgcli.ops.gffe.unproject / project) per pixel: the same float32
+operations in the same order as the torch functions (every product and sum rounded on its
+own, the matrix coefficients rounded to float32 as torch rounds a Python scalar, Python's
+``sum`` starting from 0), so the results are bit-identical: multiplications, additions and
+divisions are correctly rounded everywhere (no FMA: numba does not contract without
+fastmath, and torch's add/sub FMA has alpha +-1, exact).
+
+The one exception is the square root of the sky directions' norm: torch.sqrt on the CPU is
+MKL's vsSqrt (high-accuracy mode, not correctly rounded: ~0.6 % of float32 values differ
+from IEEE sqrt by one ulp), which a kernel cannot reproduce. Only sky pixels (+inf depth)
+use that norm, so the kernels leave them for a second pass: the first pass writes the
+squared norm of every pixel and counts the sky pixels per row; fgcli.kernels.ops takes
+torch.sqrt of the rows that have sky (the very function the reference calls, element by
+element), and the sky pass finishes those pixels.
+
+A fused unproject + project (no positions written) was measured slower than the two
+kernels one after the other (its larger body vectorises worse), so there is none.
+
+The per-pixel bodies are selects, no branches (they vectorise). The matrix coefficients
+come in as tuples of float32 scalars (fgcli.kernels.ops computes them in float64 exactly as
+the torch functions do; scalars, not arrays: loads from an array the kernel might write
+would not be hoisted out of the pixel loop)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from fgcli.kernels._common import INF, INLINE, KERNEL
+
+TINY = np.float32(1e-30)  # unproject's guards (torch compares in float32)
+EPS_W = np.float32(1e-12)  # project's clip-w threshold
+OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
+ZERO = np.float32(0.0)
+ONE = np.float32(1.0)
+
+
+# ----------------------------------------------------------------------------- unproject
+
+@njit(**INLINE)
+def _at(nx, ny, A, k):
+    """unproject's at(zn): the view-space point on the NDC ray (nx, ny); A holds the
+    (ip[i, 0], ip[i, 1], c[i]) of at(-1) (k = 0) and at(1) (k = 12)."""
+    p0 = (nx * A[k] + ny * A[k + 1]) + A[k + 2]
+    p1 = (nx * A[k + 3] + ny * A[k + 4]) + A[k + 5]
+    p2 = (nx * A[k + 6] + ny * A[k + 7]) + A[k + 8]
+    wv = (nx * A[k + 9] + ny * A[k + 10]) + A[k + 11]
+    wv = TINY if abs(wv) < TINY else wv
+    return p0 / wv, p1 / wv, p2 / wv
+
+
+@njit(**INLINE)
+def _ray(nx, ny, A):
+    """Near point (n0, n1, n2) and near-to-far vector (v0, v1, v2) of an NDC ray."""
+    n0, n1, n2 = _at(nx, ny, A, 0)
+    f0, f1, f2 = _at(nx, ny, A, 12)
+    return n0, n1, n2, f0 - n0, f1 - n1, f2 - n2
+
+
+@njit(**INLINE)
+def _nan0(v):
+    """nan_to_num(nan=0, posinf=0, neginf=0)."""
+    return v if abs(v) < INF else ZERO
+
+
+@njit(**INLINE)
+def _surface_px(nx, ny, d, A, M):
+    """unproject of one pixel, the sky left out: (x, y, z, w) of a surface (finite depth
+    > 0), zeros elsewhere (sky included), and the squared norm of the ray vector (the sky
+    direction's, before torch.sqrt). A: 24 float32 (_at); M: 12 float32, rows 0..2 of
+    world_to_camera^-1."""
+    n0, n1, n2, v0, v1, v2 = _ray(nx, ny, A)
+    finite = (d > ZERO) & (d < INF)
+    dz = -TINY if abs(v2) < TINY else v2
+    s = ((-d) - n2) / dz
+    s = s if finite else ZERO
+    w0 = n0 + v0 * s
+    w1 = n1 + v1 * s
+    w2 = n2 + v2 * s
+    o0 = (((ZERO + M[0] * w0) + M[1] * w1) + M[2] * w2) + M[3]
+    o1 = (((ZERO + M[4] * w0) + M[5] * w1) + M[6] * w2) + M[7]
+    o2 = (((ZERO + M[8] * w0) + M[9] * w1) + M[10] * w2) + M[11]
+    o0 = _nan0(o0 if finite else ZERO)
+    o1 = _nan0(o1 if finite else ZERO)
+    o2 = _nan0(o2 if finite else ZERO)
+    return o0, o1, o2, (ONE if finite else ZERO), (v0 * v0 + v1 * v1) + v2 * v2
+
+
+@njit(**INLINE)
+def _sky_px(nx, ny, nrm, A, M):
+    """The sky direction of one pixel, nrm = torch.sqrt of _surface_px's squared norm."""
+    _, _, _, v0, v1, v2 = _ray(nx, ny, A)
+    nrm = TINY if nrm < TINY else nrm  # clamp_min (NaN stays NaN)
+    r0 = v0 / nrm
+    r1 = v1 / nrm
+    r2 = v2 / nrm
+    o0 = ((ZERO + M[0] * r0) + M[1] * r1) + M[2] * r2
+    o1 = ((ZERO + M[4] * r0) + M[5] * r1) + M[6] * r2
+    o2 = ((ZERO + M[8] * r0) + M[9] * r1) + M[10] * r2
+    return _nan0(o0), _nan0(o1), _nan0(o2)
+
+
+@njit(**INLINE)
+def _ndc_row(px, py, y, kx, ky, nxr, nyr):
+    """NDC coordinates of row y's samples: px (h, w) or (1, w) (one row for all), py
+    (h, w) or (h, 1) (one value per row); kx, ky float32 2 / W, 2 / H."""
+    w = nxr.shape[0]
+    pxr = px[0] if px.shape[0] == 1 else px[y]
+    for x in range(w):
+        nxr[x] = pxr[x] * kx - ONE
+    if py.shape[1] == 1:
+        c = ONE - py[y, 0] * ky
+        for x in range(w):
+            nyr[x] = c
+    else:
+        pyr = py[y]
+        for x in range(w):
+            nyr[x] = ONE - pyr[x] * ky
+
+
+@njit(**KERNEL)
+def unproject_kernel(depth, px, py, kx, ky, A, M, out, ss, nsky):
+    """fgcli.ops.gffe.unproject but the sky: depth (h, w), samples as _ndc_row, out
+    (4, h, w); ss (h, w) the squared norms, nsky (h,) int64 the sky pixels per row."""
+    h, w = depth.shape
+    for y in prange(h):
+        nxr = np.empty(w, dtype=np.float32)
+        nyr = np.empty(w, dtype=np.float32)
+        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        dr = depth[y]
+        o0 = out[0, y]
+        o1 = out[1, y]
+        o2 = out[2, y]
+        o3 = out[3, y]
+        sr = ss[y]
+        for x in range(w):
+            a, b, c, e, s = _surface_px(nxr[x], nyr[x], dr[x], A, M)
+            o0[x] = a
+            o1[x] = b
+            o2[x] = c
+            o3[x] = e
+            sr[x] = s
+        # counted in a loop of its own: a reduction in the pixel loop stops it vectorising
+        n = 0
+        for x in range(w):
+            n += np.int64(dr[x] == INF)
+        nsky[y] = n
+
+
+@njit(**KERNEL)
+def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out):
+    """unproject_kernel's second pass: the sky pixels of rows y0 .. y0 + len(nrm) - 1, nrm
+    their rows of torch.sqrt(ss)."""
+    w = depth.shape[1]
+    for r in prange(nrm.shape[0]):
+        y = y0 + r
+        nxr = np.empty(w, dtype=np.float32)
+        nyr = np.empty(w, dtype=np.float32)
+        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        nr = nrm[r]
+        # directions into row buffers, then merged: the merge in the same loop (reading
+        # and writing out) stops it vectorising (3x slower)
+        t0 = np.empty(w, dtype=np.float32)
+        t1 = np.empty(w, dtype=np.float32)
+        t2 = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            a, b, c = _sky_px(nxr[x], nyr[x], nr[x], A, M)
+            t0[x] = a
+            t1[x] = b
+            t2[x] = c
+        dr = depth[y]
+        o0 = out[0, y]
+        o1 = out[1, y]
+        o2 = out[2, y]
+        for x in range(w):
+            sky = dr[x] == INF
+            o0[x] = t0[x] if sky else o0[x]
+            o1[x] = t1[x] if sky else o1[x]
+            o2[x] = t2[x] if sky else o2[x]
+
+
+# ----------------------------------------------------------------------------- project
+
+@njit(**INLINE)
+def _project_px(x0, x1, x2, x3, V, P, hw, hh):
+    """(px, py, depth, ok) of one homogeneous position: V (4 float32) row 2 of
+    world_to_camera, P (12 float32) rows 0, 1, 3 of projection @ world_to_camera; hw, hh =
+    0.5 W, 0.5 H."""
+    vz = (((ZERO + V[0] * x0) + V[1] * x1) + V[2] * x2) + V[3] * x3
+    c0 = (((ZERO + P[0] * x0) + P[1] * x1) + P[2] * x2) + P[3] * x3
+    c1 = (((ZERO + P[4] * x0) + P[5] * x1) + P[6] * x2) + P[7] * x3
+    cw = (((ZERO + P[8] * x0) + P[9] * x1) + P[10] * x2) + P[11] * x3
+    ok = (cw > EPS_W) & (vz < ZERO) & ((x3 != ZERO) | (x0 != ZERO) | (x1 != ZERO) |
+                                       (x2 != ZERO))
+    safe = cw if ok else ONE
+    qx = (c0 / safe + ONE) * hw
+    qy = (ONE - c1 / safe) * hh
+    # |q| < OFF is false for NaN and +-inf: also torch's isfinite test
+    ok = ok & (abs(qx) < OFF) & (abs(qy) < OFF)
+    # where ok, vz < 0: -vz > 0 or +inf (nan_to_num and clamp_min(0) change nothing)
+    dep = -vz if x3 > ZERO else INF
+    return (qx if ok else OFF), (qy if ok else OFF), (dep if ok else INF), ok
+
+
+@njit(**KERNEL)
+def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
+    """fgcli.ops.gffe.project on rows: X (4, h, w); outputs (h, w)."""
+    h, w = X.shape[1], X.shape[2]
+    for y in prange(h):
+        a0 = X[0, y]
+        a1 = X[1, y]
+        a2 = X[2, y]
+        a3 = X[3, y]
+        rx = px[y]
+        ry = py[y]
+        rd = depth[y]
+        ro = ok[y]
+        for x in range(w):
+            qx, qy, d, o = _project_px(a0[x], a1[x], a2[x], a3[x], V, P, hw, hh)
+            rx[x] = qx
+            ry[x] = qy
+            rd[x] = d
+            ro[x] = o

@@ -1,0 +1,306 @@
+"""gffe's camera geometry kernels (fgcli.kernels.geom via fgcli.kernels.ops.unproject /
+project): bit-identical to the torch functions of fgcli.ops.gffe on random cameras and the
+hard cases, the gffe ops with the kernels (``geom``) against the reference, and the whole
+gffe-extrap pipeline with --backend numba against torch.
+
+The kernels use only float32 multiplications, additions and divisions (correctly rounded on
+every CPU) and torch's own sqrt for the sky, so these comparisons are exact on every build
+(no ATEN_CPU_CAPABILITY=default allowance as in tests/test_kernels.py)."""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("numba")
+
+from fgcli.kernels import ops as K  # noqa: E402
+from fgcli.ops import gffe as G  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+INF, NAN = float("inf"), float("nan")
+
+
+def bits_equal(name, a, b):
+    """Same shape, dtype and bits (floats compared as int32: -0.0 != 0.0, NaN payloads
+    equal). The outputs are finite by contract, so NaN bits never come into it."""
+    assert a.shape == b.shape and a.dtype == b.dtype, (name, a.shape, b.shape, a.dtype, b.dtype)
+    if a.dtype == torch.float32:
+        eq = a.contiguous().view(torch.int32) == b.contiguous().view(torch.int32)
+    else:
+        eq = a == b
+    assert bool(eq.all()), f"{name}: {int((~eq).sum())} of {eq.numel()} differ"
+
+
+def same_tree(name, a, b):
+    if isinstance(a, torch.Tensor):
+        bits_equal(name, a, b)
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), name
+        for k in a:
+            same_tree(f"{name}.{k}", a[k], b[k])
+    elif isinstance(a, (tuple, list)):
+        assert len(a) == len(b), name
+        for i, (x, y) in enumerate(zip(a, b)):
+            same_tree(f"{name}[{i}]", x, y)
+    else:
+        assert a == b, name
+
+
+# ----------------------------------------------------------------------------- cameras
+
+def perspective(fov, aspect, near, far, skew=0.0, shift=(0.0, 0.0)):
+    f = 1.0 / math.tan(math.radians(fov / 2))
+    return np.array([[f / aspect, skew, shift[0], 0], [0, f, shift[1], 0],
+                     [0, 0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+                     [0, 0, -1, 0]])
+
+
+def orthographic(half_w, half_h, near, far):
+    return np.array([[1 / half_w, 0, 0, 0], [0, 1 / half_h, 0, 0],
+                     [0, 0, -2 / (far - near), -(far + near) / (far - near)], [0, 0, 0, 1.0]])
+
+
+def random_camera(rng, aspect):
+    pos = rng.normal(size=3) * 5
+    view = G.look_at(pos, rng.normal(size=3), rng.normal(size=3))
+    kind = rng.integers(0, 3)
+    if kind == 0:
+        p = perspective(rng.uniform(10, 120), aspect, rng.uniform(1e-3, 1.0),
+                        rng.uniform(10, 1e5))
+    elif kind == 1:  # off-axis, skewed
+        p = perspective(rng.uniform(20, 90), aspect, 0.05, 1000.0, rng.uniform(-0.2, 0.2),
+                        tuple(rng.uniform(-0.5, 0.5, 2)))
+    else:
+        p = orthographic(rng.uniform(1, 20), rng.uniform(1, 20), 0.1, 500.0)
+    return view, p
+
+
+def hard_depth(h, w, rng, scale=50.0):
+    g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
+    d = torch.rand(1, h, w, generator=g) * scale + 1e-3
+    flat = d.view(-1)
+    n = flat.numel()
+    for value in (INF, 0.0, -3.0, NAN, -INF, 1e-30, 3e38, 1e-45):
+        k = max(1, n // 12)
+        flat[torch.randint(0, n, (k,), generator=g)] = value
+    if h > 2:
+        d[0, : h // 3] = INF  # sky rows
+    return d
+
+
+SIZES = [(1, 1), (1, 17), (13, 1), (7, 13), (37, 53), (64, 96)]
+
+
+@pytest.mark.parametrize("h,w", SIZES)
+def test_unproject_is_bit_identical(h, w):
+    rng = np.random.default_rng(h * 1000 + w)
+    for trial in range(4):
+        cam = random_camera(rng, w / h)
+        d = hard_depth(h, w, rng)
+        bits_equal(f"default grid {trial}", K.unproject(d, cam), G.unproject(d, cam))
+        # sample coordinates: random, huge, off-screen, some non-finite; another size
+        g = torch.Generator().manual_seed(trial)
+        px = (torch.rand(h, w, generator=g) * 3 - 1) * w
+        py = (torch.rand(h, w, generator=g) * 3 - 1) * h
+        px.view(-1)[:: 7] = 1e8
+        py.view(-1)[3:: 11] = -1e9
+        if h * w > 20:
+            px.view(-1)[5] = NAN
+            py.view(-1)[9] = INF
+        size = (h + 3, max(1, w - 2))
+        bits_equal(f"samples {trial}", K.unproject(d, cam, px, py, size),
+                   G.unproject(d, cam, px, py, size))
+        # separable (expanded) centres, as the background layers pass them
+        cx, cy = G._centres(h, w, 2.0, "cpu")
+        bits_equal(f"centres {trial}", K.unproject(d, cam, cx, cy, (2 * h, 2 * w)),
+                   G.unproject(d, cam, cx, cy, (2 * h, 2 * w)))
+
+
+@pytest.mark.parametrize("h,w", SIZES)
+def test_project_is_bit_identical(h, w):
+    rng = np.random.default_rng(h * 7 + w)
+    for trial in range(4):
+        cam_a, cam_b = random_camera(rng, w / h), random_camera(rng, w / h)
+        d = hard_depth(h, w, rng)
+        X = G.unproject(d, cam_a)  # surfaces, sky directions, zeros; many behind cam_b
+        same_tree(f"unprojected {trial}", K.project(X, cam_b, (h, w)), G.project(X, cam_b, (h, w)))
+        # arbitrary homogeneous positions: huge, negative w, non-finite, all zero
+        g = torch.Generator().manual_seed(100 + trial)
+        Y = torch.randn(4, h, w, generator=g) * 10
+        Y[3] = torch.where(torch.rand(h, w, generator=g) < 0.3, torch.zeros(h, w), Y[3])
+        flat = Y.view(4, -1)
+        n = flat.shape[1]
+        for value in (0.0, -0.0, 1e30, -1e30, INF, -INF, NAN, 1e-40):
+            flat[torch.randint(0, 4, (max(1, n // 10),), generator=g),
+                 torch.randint(0, n, (max(1, n // 10),), generator=g)] = value
+        flat[:, 0] = 0.0
+        same_tree(f"random {trial}", K.project(Y, cam_b, (h + 1, w + 5)),
+                  G.project(Y, cam_b, (h + 1, w + 5)))
+
+
+def test_project_takes_any_trailing_shape():
+    rng = np.random.default_rng(5)
+    cam = random_camera(rng, 1.5)
+    X = G.unproject(hard_depth(6, 10, rng), random_camera(rng, 1.5))
+    for Y in (X.reshape(4, 60), X.reshape(4, 3, 2, 10), X[:, :, ::2]):
+        same_tree(f"shape {tuple(Y.shape)}", K.project(Y, cam, (6, 10)),
+                  G.project(Y, cam, (6, 10)))
+
+
+def test_other_inputs_run_the_reference():
+    rng = np.random.default_rng(6)
+    cam = random_camera(rng, 1.0)
+    d = hard_depth(5, 5, rng)
+    # float64 depth or samples, a batch, a non-CPU (meta) tensor: the torch function
+    bits_equal("float64", K.unproject(d.double(), cam), G.unproject(d.double(), cam))
+    px = G.aux(5, 5, "cpu")["xh"].expand(5, 5).double()
+    py = G.aux(5, 5, "cpu")["yh"].expand(5, 5).double()
+    bits_equal("float64 samples", K.unproject(d, cam, px, py), G.unproject(d, cam, px, py))
+    m = K.unproject(d.to("meta"), cam)
+    assert m.device.type == "meta" and m.shape == (4, 5, 5)
+    out = K.project(G.unproject(d, cam).to("meta"), cam, (5, 5))
+    assert all(t.device.type == "meta" for t in out)
+    with pytest.raises(ValueError, match="non-finite"):
+        K.unproject(d, (np.full((4, 4), np.nan), np.eye(4)))
+
+
+# ----------------------------------------------------------------------------- ops
+
+def _frames(h=24, w=40, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    view = G.look_at([0.0, 0.5, 3.0], [0.05, -0.1, -1.0], [0, 1, 0])
+    cam1 = (view, perspective(60, w / h, 0.05, 500.0))
+    cam0 = (G.look_at([-0.15, 0.45, 3.1], [0.0, -0.1, -1.0], [0, 1, 0]), cam1[1])
+    cam_x = G.extrapolate_camera(cam0, cam1, 0.5, "rigid")
+    d1 = torch.rand(1, h, w, generator=g) * 4 + 2
+    d1[0, :h // 6] = INF
+    d1[0, h // 2, 3:6] = 0.0
+    d1[0, h // 2 + 1, 3:6] = NAN
+    d0 = d1.roll(1, -1) * 1.01
+    mv1 = torch.randn(2, h, w, generator=g) * 2
+    c1 = torch.rand(3, h, w, generator=g)
+    return dict(cam0=cam0, cam1=cam1, cam_x=cam_x, d0=d0, d1=d1, mv1=mv1, c1=c1, h=h, w=w)
+
+
+def test_gffe_ops_with_the_kernels_are_bit_identical():
+    f = _frames()
+    h, w = f["h"], f["w"]
+    cases = []
+    th = lambda **k: G.track_history(f["d1"], f["mv1"], f["cam1"], **k)  # noqa: E731
+    cases.append(("history first frame", lambda geom: th(geom=geom)))
+    cases.append(("history", lambda geom: th(cam0=f["cam0"], depth0=f["d0"], geom=geom)))
+    cases.append(("history nearest", lambda geom: th(cam0=f["cam0"], depth0=f["d0"],
+                                                     lookup="nearest", geom=geom)))
+    traj, dyn = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"])
+    cases.append(("history prev", lambda geom: th(cam0=f["cam0"], prev=traj, k=3, geom=geom)))
+    cases.append(("dilate", lambda geom: G.dilate_trajectory(traj, f["d1"], f["cam1"], dyn,
+                                                             geom=geom)))
+    pos = G.estimate_positions(traj, 0.5)
+    cases.append(("warp", lambda geom: G.warp_positions(f["c1"], pos, f["cam_x"], geom=geom)))
+    layers = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"], layer1_scale=1)
+    for sc in (1, 2):
+        cases.append((f"collect {sc}", lambda geom, sc=sc: G.collect_background(
+            f["c1"], f["d1"], ~dyn, f["cam1"], layers, f["cam0"], 0.02, True, sc, geom=geom)))
+    holes = torch.rand(1, h, w, generator=torch.Generator().manual_seed(3)) < 0.3
+    for filt in ("nearest", "bilinear"):
+        cases.append((f"project bg {filt}", lambda geom, filt=filt: G.project_background(
+            layers, f["cam1"], f["cam_x"], holes, filt, geom=geom)))
+    b = 3
+    border = {"origin": (-b, -b), "color": torch.rand(3, h + 2 * b, w + 2 * b),
+              "depth": torch.nn.functional.pad(f["d1"], (b, b, b, b), value=5.0)}
+    cases.append(("border", lambda geom: G.project_border(border, f["cam1"], f["cam_x"], holes,
+                                                          geom=geom)))
+    dfill = torch.where(holes, torch.full_like(f["d1"], 4.0), f["d1"])
+    for off in ("clamp", "skip"):
+        for bd in (None, border):
+            cases.append((f"reproject {off} {bd is not None}",
+                          lambda geom, off=off, bd=bd: G.reproject_fill(
+                              f["c1"], ~holes, dfill, f["c1"], f["d1"], f["cam1"], f["cam_x"],
+                              offscreen=off, border=bd, geom=geom)))
+    for name, call in cases:
+        same_tree(name, call(K.GEOM), call(None))
+
+
+def test_dispatch_gives_the_kernel_versions():
+    from fgcli.kernels import KERNEL_OPS, op
+
+    names = [n for n, m in KERNEL_OPS.items() if m == "fgcli.ops.gffe"]
+    assert {"track_history", "warp_positions", "project_background", "reproject_fill"} <= set(
+        names)
+    for n in names:
+        assert op(n, {"backend": "torch"}) is getattr(G, n)
+        assert op(n, {"backend": "numba"}) is getattr(K, n)
+    f = _frames(8, 12, 1)
+    a = op("track_history", {"backend": "numba"})(f["d1"], f["mv1"], f["cam1"], f["cam0"],
+                                                  f["d0"])
+    same_tree("track_history", a, G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"],
+                                                  f["d0"]))
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+@pytest.fixture(scope="module")
+def orbit_frames():
+    """Four frames of the bundled orbit scene (orbiting camera, sky, shadows) at 64x36,
+    the last two with a synthetic 4-pixel overscan border."""
+    from fgcli.synth import load_scene, render
+
+    scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "orbit.toml"), size=(64, 36))
+    frames = [render(scene, 2.0 + i, 1.0 + i, spp=1) for i in range(4)]
+    g = torch.Generator().manual_seed(0)
+    out = []
+    for i, f in enumerate(frames):
+        if i >= 2:
+            b = 4
+            d = torch.nn.functional.pad(f.depth, (b, b, b, b), value=INF)
+            d[:, -b:] = torch.rand(1, b, d.shape[-1], generator=g) * 5 + 1
+            f = f.replace(overscan={"origin": (-b, -b), "depth": d,
+                                    "color": torch.rand(3, *d.shape[-2:], generator=g)})
+        out.append(f)
+    return out
+
+
+def _run(name, frames, backend, alpha):
+    from fgcli import pipeline as pl
+    from fgcli.pipeline import frame_facts, run_stages
+    from fgcli.runner import RunState, make_ctx
+
+    stages = pl.load(name).build("extrap")
+    state = RunState()
+    outs = []
+    with torch.inference_mode():
+        for f0, f1 in zip([None] + frames[:-1], frames):
+            ctx = make_ctx(f0, f1, alpha, "extrap")
+            ctx.update(prev_time=0.0, state=state, backend=backend)
+            out = run_stages(stages, ctx, None, facts=frame_facts(ctx))
+            outs.append({k: out[k] for k in ("color", "depth", "mv")})
+    return outs
+
+
+@pytest.mark.parametrize("name", [
+    "gffe-extrap",
+    # the paper's variants: nearest lookup, quarter-size layer 1, no dilation, nearest
+    # background filter, linear camera model, push-pull only
+    "gffe-extrap:history.lookup=nearest,background.layer1_scale=2,position.dilate=full,"
+    "bg_project.filter=nearest,camera.model=linear,hole_fill.offscreen=skip",
+])
+def test_gffe_extrap_numba_equals_torch(orbit_frames, name, monkeypatch):
+    seen = []
+
+    def unproject(depth, *a, **k):
+        seen.append(tuple(depth.shape[-2:]))
+        return K.unproject(depth, *a, **k)
+
+    monkeypatch.setattr(K, "GEOM", G.Geometry(unproject, K.project))
+    for alpha in (0.5, 1.0):
+        a = _run(name, orbit_frames, "numba", alpha)
+        b = _run(name, orbit_frames, "torch", alpha)
+        for i, (x, y) in enumerate(zip(a, b)):
+            same_tree(f"{name} alpha {alpha} frame {i}", x, y)
+    # the kernels ran: the frame's pixels, and the overscan border's (project_border)
+    assert (36, 64) in seen and (44, 72) in seen
+    assert any(bool(torch.isinf(f.depth).any()) for f in orbit_frames)  # sky
