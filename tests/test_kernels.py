@@ -344,6 +344,37 @@ def test_fsr3_scatters(h, w):
     assert torch.equal(K.vector_field(c0, c1, v * 0, hi), fsr3.vector_field(c0, c1, v * 0, hi))
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
+def test_fsr3_masks_and_interpolation(h, w):
+    """FSR 3's disocclusion masks and interpolation pass: one kernel pass each, the
+    reference's float32 operations one by one (hard cases: sky, NaN and zero depths; NaN,
+    inf and huge vectors; HDR, NaN and inf colour; masks off-screen; alpha at both ends)."""
+    from fgcli.ops import fsr3
+
+    c0, c1, v, d = _fsr3_inputs(h, w, h * 5 + w)
+    g = torch.Generator().manual_seed(h + w)
+    dp = d.flip(-1).clone()
+    dp[0, ::3, ::2] = 0.0
+    of = torch.randn(2, h, w, generator=g) * 3.0
+    of[0, :1] = NAN
+    c0 = c0.clone()
+    c0[0, :1] = 1e30
+    c0[1, -1:] = INF
+    c1 = c1.clone()
+    c1[2, :, :1] = NAN
+    c1[:, :1, -1:] = 0.0
+    for a in (0.5, 0.3, 0.0, 1.0):
+        mk = K.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4)
+        same_result("masks", mk, fsr3.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4))
+        for o in (None, of, v * 0):
+            same_result(f"interp a={a}", K.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o),
+                        fsr3.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o))
+    # display space runs the reference
+    one = torch.ones(1, h, w)
+    same_result("display", K.interpolate_fsr3(c0, c1, v, one, one, 0.5, of, "display"),
+                fsr3.interpolate_fsr3(c0, c1, v, one, one, 0.5, of, "display"))
+
+
 # ----------------------------------------------------------------------------- dispatch, CLI
 
 def test_dispatch_and_resolve():

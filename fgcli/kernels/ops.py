@@ -283,6 +283,62 @@ def guiding_flows(depth1, mv1, alpha, mv0=None, depth0=None, undilated=True):
                             mv0, depth0, undilated)
 
 
+# ----------------------------------------------------------------------------- fsr3 passes
+
+
+def disocclusion_masks(depth_t, depth_prev, depth1, vec, alpha=0.5, kfov=1.4, ksep=1.37e-5,
+                       threshold=0.5):
+    """fgcli.ops.fsr3.disocclusion_masks: both masks in one kernel pass."""
+    from fgcli.ops import fsr3 as FS
+
+    if not _cpu(depth_t, depth_prev, depth1, vec):
+        return FS.disocclusion_masks(depth_t, depth_prev, depth1, vec, alpha, kfov, ksep,
+                                     threshold)
+    depth_t, depth_prev, depth1, vec, a, thr = FS.disocclusion_args(
+        depth_t, depth_prev, depth1, vec, alpha, kfov, ksep)
+    from fgcli.kernels.fsr3 import disocclusion_kernel
+
+    h, w = depth_t.shape[-2:]
+    mp, mc = _empty(1, h, w), _empty(1, h, w)
+    disocclusion_kernel(_a(depth_t)[0], _a(depth_prev)[0], _a(depth1)[0], _a(vec), F32(a),
+                        F32(1.0 - a), F32(thr), F32(threshold), mp.numpy()[0], mc.numpy()[0])
+    return mp, mc
+
+
+def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec=None,
+                     space="linear"):
+    """fgcli.ops.fsr3.interpolate_fsr3 (linear space, 3-channel colour) in one kernel
+    pass; display space and other shapes run the reference."""
+    from fgcli.ops import fsr3 as FS
+
+    args = (color0, color1, vec, mask_prev, mask_cur, alpha, of_vec, space)
+    if not _cpu(color0, color1, vec, mask_prev, mask_cur, of_vec) or space != "linear":
+        return FS.interpolate_fsr3(*args)
+    color0, color1, vec, of_vec, a = FS.interpolate_args(color0, color1, vec, alpha, of_vec,
+                                                         space)
+    c, h, w = color0.shape
+    if c != 3 or any(m.shape != (1, h, w) or m.dtype != torch.float32
+                     for m in (mask_prev, mask_cur)):
+        return FS.interpolate_fsr3(*args)
+    from fgcli.kernels.fsr3 import interp_flow_kernel, interp_game_kernel
+
+    gxn, gyn, kx, ky = _grid(h, w)
+    out, holes, bias = _empty(3, h, w), _empty(1, h, w, dtype=torch.bool), _empty(1, h, w)
+    has_of = of_vec is not None
+    T, G = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
+    S = np.empty((h, w), dtype=np.float32) if has_of else _DUMMY2
+    a32, na32 = F32(a), F32(-(1.0 - a))
+    interp_game_kernel(_a(color0), _a(color1), _a(vec), _a(mask_prev)[0], _a(mask_cur)[0],
+                       has_of, a32, na32, F32(1.0 - a), gxn, gyn, kx, ky, out.numpy(),
+                       holes.numpy()[0], T, G, S)
+    if has_of:
+        interp_flow_kernel(_a(color0), _a(color1), _a(of_vec), a32, na32, gxn, gyn, kx, ky,
+                           T, G, S, out.numpy(), bias.numpy()[0])
+    else:
+        bias.fill_(1.0)
+    return out, holes, bias
+
+
 # ----------------------------------------------------------------------------- start-up
 
 
@@ -309,7 +365,9 @@ _GROUPS = (
      lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"]),
      lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None, 0.5,
                          0.02, 0.13, static_from=i["gf"]),
-     lambda i: any_nonzero(i["mv"])),
+     lambda i: any_nonzero(i["mv"]),
+     lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"]),
+     lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"])),
     (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
      lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
@@ -330,14 +388,15 @@ def _warm_group(k: int) -> None:
 def _cache_cold() -> bool:
     """True when some kernel has no on-disk cache index yet (a fresh install). A stale index
     (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
-    from fgcli.kernels import blend, field, fill, flow, splat, warp
+    from fgcli.kernels import blend, field, fill, flow, fsr3, splat, warp
 
     kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
                fill.gap_fill_kernel,
                fill.extrap_fill_kernel, warp.warp_kernel, warp.mv_warp_kernel,
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
                flow.block_search_kernel, field.field_scatter_kernel,
-               field.depth_scatter_kernel)
+               field.depth_scatter_kernel, fsr3.disocclusion_kernel,
+               fsr3.interp_game_kernel, fsr3.interp_flow_kernel)
     from fgcli.kernels import geom
 
     kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)

@@ -477,11 +477,24 @@ def _tap_mask(depth_src, pos, depth_ref, thr):
         wt = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
         xi, yi = x0 + dx, y0 + dy
         on = (xi >= 0) & (xi <= w - 1) & (yi >= 0) & (yi <= h - 1)
-        idx = (yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)).to(torch.int64)
+        # integer index arithmetic (float32 products are exact only below 2**24 pixels)
+        idx = yi.clamp(0, h - 1).to(torch.int64).mul_(w).add_(xi.clamp(0, w - 1).to(torch.int64))
         z = d[idx]
         ok = _same_surface(z, depth_ref, thr) | (z > depth_ref)
         acc += wt * (on & ok)
     return acc
+
+
+def disocclusion_args(depth_t, depth_prev, depth1, vec, alpha, kfov, ksep):
+    """disocclusion_masks' checked inputs: (depth_t, depth_prev, depth1, vec, alpha,
+    thr = Ksep Kfov width)."""
+    depth_t = check_tensor(depth_t, "depth_t", 1, allow_batch=False)
+    depth_prev = check_tensor(depth_prev, "depth_prev", 1, allow_batch=False)
+    depth1 = check_tensor(depth1, "depth1", 1, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    check_same(depth_t, "depth_t", (depth_prev, "depth_prev"), (depth1, "depth1"), (vec, "vec"))
+    a = check_alpha(alpha)
+    return depth_t, depth_prev, depth1, vec, a, float(ksep) * float(kfov) * depth_t.shape[-1]
 
 
 def disocclusion_masks(depth_t: torch.Tensor, depth_prev: torch.Tensor, depth1: torch.Tensor,
@@ -504,14 +517,9 @@ def disocclusion_masks(depth_t: torch.Tensor, depth_prev: torch.Tensor, depth1: 
     Returns:
         (mask_prev, mask_cur): (1, H, W) float32 in {0, 1}.
     """
-    depth_t = check_tensor(depth_t, "depth_t", 1, allow_batch=False)
-    depth_prev = check_tensor(depth_prev, "depth_prev", 1, allow_batch=False)
-    depth1 = check_tensor(depth1, "depth1", 1, allow_batch=False)
-    vec = check_tensor(vec, "vec", 2, allow_batch=False)
-    check_same(depth_t, "depth_t", (depth_prev, "depth_prev"), (depth1, "depth1"), (vec, "vec"))
-    a = check_alpha(alpha)
+    depth_t, depth_prev, depth1, vec, a, thr = disocclusion_args(depth_t, depth_prev, depth1,
+                                                                  vec, alpha, kfov, ksep)
     h, w = depth_t.shape[-2:]
-    thr = float(ksep) * float(kfov) * w
     v = sanitize_mv(vec).reshape(2, -1)
     p = _positions(h, w, vec.device)
     zt = sanitize_depth(depth_t).reshape(-1)
@@ -524,13 +532,17 @@ def disocclusion_masks(depth_t: torch.Tensor, depth_prev: torch.Tensor, depth1: 
 
 def color_similarity(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
     """FSR 3's colour similarity ``dot(a/m, b/m)``, m = max(|a|, |b|) (RGB lengths):
-    1 for equal colours (both black included), smaller as they differ.
-    (3, H, W) x2 -> (1, H, W)."""
-    na = _length(a, keepdim=True)
-    nb = _length(b, keepdim=True)
-    m = torch.maximum(na, nb)
-    s = (a * b).sum(dim=0, keepdim=True) / (m * m).clamp(min=eps)
-    return torch.where(m <= eps, torch.ones_like(s), s)
+    1 for equal colours (both black included, m <= eps), smaller as they differ.
+    (3, H, W) x2 -> (1, H, W).
+
+    Computed as ``dot(a, b) / max(|a|^2, |b|^2)`` (the denominator clamped to eps): no
+    square root, which torch's CPU kernels (MKL) do not round correctly, so a compiled
+    kernel could not repeat it bit for bit."""
+    sa = (a * a).sum(dim=0, keepdim=True)
+    sb = (b * b).sum(dim=0, keepdim=True)
+    m2 = torch.maximum(sa, sb)
+    s = (a * b).sum(dim=0, keepdim=True) / m2.clamp(min=eps)
+    return torch.where(m2 <= eps * eps, torch.ones_like(s), s)
 
 
 def encode_display(x: torch.Tensor) -> torch.Tensor:
@@ -546,6 +558,19 @@ def decode_display(v: torch.Tensor) -> torch.Tensor:
     """Inverse of encode_display."""
     v = v.clamp(min=0.0)
     return torch.where(v <= 0.04045, v / 12.92, ((v.clamp(min=0.04045) + 0.055) / 1.055).pow(2.4))
+
+
+def interpolate_args(color0, color1, vec, alpha, of_vec, space):
+    """interpolate_fsr3's checked inputs: (color0, color1, vec, of_vec, alpha)."""
+    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
+    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    if of_vec is not None:
+        of_vec = check_tensor(of_vec, "of_vec", 2, allow_batch=False)
+    check_same(color0, "color0", (color1, "color1"), (vec, "vec"), (of_vec, "of_vec"))
+    if space not in ("linear", "display"):
+        raise ValueError(f"space: expected 'linear' or 'display', got {space!r}")
+    return color0, color1, vec, of_vec, check_alpha(alpha)
 
 
 def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
@@ -571,15 +596,7 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
     Returns:
         (color (3, H, W), holes (1, H, W) bool, bias (1, H, W) float: 1 = game vectors).
     """
-    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
-    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
-    vec = check_tensor(vec, "vec", 2, allow_batch=False)
-    if of_vec is not None:
-        of_vec = check_tensor(of_vec, "of_vec", 2, allow_batch=False)
-    check_same(color0, "color0", (color1, "color1"), (vec, "vec"), (of_vec, "of_vec"))
-    a = check_alpha(alpha)
-    if space not in ("linear", "display"):
-        raise ValueError(f"space: expected 'linear' or 'display', got {space!r}")
+    color0, color1, vec, of_vec, a = interpolate_args(color0, color1, vec, alpha, of_vec, space)
     if space == "display":
         color0 = encode_display(sanitize_values(color0))
         color1 = encode_display(sanitize_values(color1))

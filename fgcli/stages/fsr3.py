@@ -161,6 +161,7 @@ class FSR3Disocclusion(Stage):
     inputs = ("depth_t", "depth_prev_r", "depth1_d", "game_mv", "alpha")
     optional_inputs = ("camera1",)
     outputs = ("mask_prev", "mask_cur")
+    uses_kernels = True
     options = (Option("ksep", "float", 1.37e-5, "minimum-separation constant Ksep",
                       range=(0.0, 1.0)),
                Option("fov_default", "float", 60.0, "vertical fov (degrees) when the frame has "
@@ -179,14 +180,15 @@ class FSR3Disocclusion(Stage):
         return {"mask_prev": one, "mask_cur": one.clone()}
 
     def run(self, ctx):
-        from fgcli.ops.fsr3 import camera_kfov, disocclusion_masks
+        from fgcli.kernels import op
+        from fgcli.ops.fsr3 import camera_kfov
 
         d = ctx["depth_t"]
         cam = ctx.get("camera1")
         kfov = camera_kfov(None if cam is None else cam.projection, d.shape[-1], d.shape[-2],
                            self.fov_default)
-        mp, mc = disocclusion_masks(d, ctx["depth_prev_r"], ctx["depth1_d"], ctx["game_mv"],
-                                    ctx["alpha"], kfov, self.ksep)
+        mp, mc = op("disocclusion_masks", ctx)(d, ctx["depth_prev_r"], ctx["depth1_d"],
+                                               ctx["game_mv"], ctx["alpha"], kfov, self.ksep)
         return {"mask_prev": mp, "mask_cur": mc}
 
 
@@ -199,6 +201,7 @@ class FSR3Interpolate(Stage):
     inputs = ("color0", "color1", "game_mv", "mask_prev", "mask_cur", "depth_t", "alpha")
     optional_inputs = ("of_mv", "depth0", "depth1", "prev_time")
     outputs = ("color", "depth", "mv", "fsr3_holes", "fsr3_bias")
+    uses_kernels = True
     options = (Option("space", "choice", "linear", "colour space of the samples, the "
                       "similarity and the lerps: linear, or display = the sRGB-encoded back "
                       "buffers FSR 3 interpolates (extended above 1 for HDR, decoded after)",
@@ -209,13 +212,13 @@ class FSR3Interpolate(Stage):
 
         from fgcli.ops import sample_nearest, sanitize_depth, sanitize_mv
         from fgcli.ops._util import reads_back
-        from fgcli.ops.fsr3 import interpolate_fsr3
+        from fgcli.kernels import op
 
         a = ctx["alpha"]
         v = sanitize_mv(ctx["game_mv"])
-        color, holes, bias = interpolate_fsr3(ctx["color0"], ctx["color1"], v,
-                                              ctx["mask_prev"], ctx["mask_cur"], a,
-                                              ctx.get("of_mv"), self.space)
+        color, holes, bias = op("interpolate_fsr3", ctx)(ctx["color0"], ctx["color1"], v,
+                                                         ctx["mask_prev"], ctx["mask_cur"], a,
+                                                         ctx.get("of_mv"), self.space)
         depth = sanitize_depth(ctx["depth_t"])
         if ctx.get("depth0") is not None and (not reads_back(depth)
                                               or bool(torch.isinf(depth).any())):

@@ -1,0 +1,210 @@
+"""FSR 3's per-pixel passes (fgcli.ops.fsr3) as numba kernels, each one pass over the
+frame with no frame-sized temporaries:
+
+- ``disocclusion_kernel``: both disocclusion masks (``disocclusion_masks``: four bilinear
+  depth taps toward each frame, the same-surface test, the agreeing weight against the
+  threshold);
+- ``interp_game_kernel`` + ``interp_flow_kernel``: the interpolation pass
+  (``interpolate_fsr3``, linear space): the game
+  and optical-flow sample pairs (grid_sample's bilinear arithmetic, as fgcli.kernels.warp),
+  the mask lerp weight, the colour similarities, the bias and the final lerp.
+
+Exactness: every value is the reference's float32 operation sequence (the scalars rounded
+to float32 as torch rounds a Python float operand, FMAs where torch's vectorised kernels
+use them: grid_sample and lerp), so outputs are bit-identical on FMA builds of torch
+(tests/test_kernels.py). One deliberate difference: the reference's tap index is computed
+in float32 (``y * w + x``), which is exact below 2**24 pixels; the kernel's is integer (the
+reference was fixed to int64 arithmetic at the same time, so both agree at every size)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
+from fgcli.kernels.blend import _lerp_b
+from fgcli.kernels.warp import _bil, _coords
+
+
+@njit(**INLINE)
+def _tap(d, xi, yi, wt, zt, thr, w, h, wm1, hm1):
+    """One bilinear tap of _tap_mask: its weight when on-screen and the same surface as zt
+    (or farther), else 0 (added to the running sum as the reference's ``wt * (on & ok)``)."""
+    on = (xi >= F32(0.0)) & (xi <= wm1) & (yi >= F32(0.0)) & (yi <= hm1)
+    ix = np.int64(clamp_b(xi, F32(0.0), wm1))
+    iy = np.int64(clamp_b(yi, F32(0.0), hm1))
+    z = sdepth_b(d[iy, ix])
+    diff = abs(z - zt)
+    mn = z if z < zt else zt
+    ok = (z == zt) | (mn * thr >= diff) | (z > zt)
+    return wt * F32(on & ok)
+
+
+@njit(**INLINE)
+def _tap_mask(d, x, y, zt, thr, w, h, wm1, hm1):
+    """fgcli.ops.fsr3._tap_mask at one position (x, y) (index coordinates)."""
+    x = clamp_b(x, F32(-2.0), F32(w + 1.0))
+    y = clamp_b(y, F32(-2.0), F32(h + 1.0))
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = x - x0
+    fy = y - y0
+    ex = F32(1.0) - fx
+    ey = F32(1.0) - fy
+    x1 = x0 + F32(1.0)
+    y1 = y0 + F32(1.0)
+    acc = F32(0.0)
+    acc += _tap(d, x0, y0, ex * ey, zt, thr, w, h, wm1, hm1)
+    acc += _tap(d, x1, y0, fx * ey, zt, thr, w, h, wm1, hm1)
+    acc += _tap(d, x0, y1, ex * fy, zt, thr, w, h, wm1, hm1)
+    acc += _tap(d, x1, y1, fx * fy, zt, thr, w, h, wm1, hm1)
+    return acc
+
+
+@njit(**KERNEL)
+def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc):
+    """Both masks: toward the previous frame the taps of depth_prev at ``q + a v``, toward
+    the current frame those of depth1 at ``q - b v`` (a = alpha, b = 1 - alpha as float32);
+    1.0 where the agreeing weight reaches ``threshold``, else 0.0."""
+    h, w = depth_t.shape
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for py in prange(h):
+        y = np.int64(py)
+        yf = F32(y)
+        for x in range(w):
+            vx = smv_b(vec[0, y, x])
+            vy = smv_b(vec[1, y, x])
+            zt = sdepth_b(depth_t[y, x])
+            acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w, h, wm1, hm1)
+            mp[y, x] = F32(acc >= threshold)
+        for x in range(w):
+            vx = smv_b(vec[0, y, x])
+            vy = smv_b(vec[1, y, x])
+            zt = sdepth_b(depth_t[y, x])
+            acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w, h, wm1, hm1)
+            mc[y, x] = F32(acc >= threshold)
+
+
+@njit(**INLINE)
+def _sample(c, rx, ry, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, out,
+            ox):
+    """backward_warp(c, flow)[:, y, x] (bilinear, border clamp; zero flow exact) into
+    out[:, ox]; returns inside_mask of the flow (rx, ry are finite: sanitised vectors times
+    a float32 scalar)."""
+    valid = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    zero = (rx == F32(0.0)) & (ry == F32(0.0))
+    y0, x0, y1, x1, nw, ne, sw, se = _coords(rx, ry, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
+    for k in range(3):
+        r = _bil(c, k, y0, x0, y1, x1, nw, ne, sw, se)
+        out[k, ox] = sval_b(c[k, y, x]) if zero else r
+    return valid
+
+
+@njit(**INLINE)
+def _max_nan(p, q):
+    """torch.maximum: NaN when either is NaN."""
+    m = p if p >= q else q
+    m = p if p != p else m
+    return q if q != q else m
+
+
+@njit(**INLINE)
+def _similarity(pa, pb, ox, eps, eps2):
+    """color_similarity of the pixels pa[:, ox], pb[:, ox]."""
+    a0, a1, a2 = pa[0, ox], pa[1, ox], pa[2, ox]
+    b0, b1, b2 = pb[0, ox], pb[1, ox], pb[2, ox]
+    m2 = _max_nan(a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2)
+    s = (a0 * b0 + a1 * b1 + a2 * b2) / (eps if m2 < eps else m2)
+    return F32(1.0) if m2 <= eps2 else s
+
+
+# Row buffers are float32, never bool, and each row loop does one kind of work: a bool row
+# buffer, or the optical-flow samples in the same prange body as the game samples, kept
+# LLVM from vectorising the gathers (4-10x slower at 1080p). Hence two kernels.
+
+
+@njit(**KERNEL)
+def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn, gyn, kx, ky,
+                       out, holes, T, G, S):
+    """interpolate_fsr3's game path (linear space, 3-channel colour): out = lerp(P, C, t)
+    (sanitised unless ``has_of``), holes, and for the optical-flow pass the lerp weight
+    T = t, G = 1.0 where exactly one mask is 0 (the game path decides), S = the game
+    samples' colour similarity. a = alpha, na = -(1 - alpha) (the scale of the vectors
+    toward frame 1), nb = 1 - alpha, all float32."""
+    h, w = mask_prev.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    eps = F32(1e-6)
+    eps2 = F32(1e-6 * 1e-6)
+    for py in prange(h):
+        y = np.int64(py)
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        P = np.empty((3, w), dtype=np.float32)
+        C = np.empty((3, w), dtype=np.float32)
+        in0 = np.empty(w, dtype=np.float32)
+        in1 = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y,
+                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w,
+                                 h, P, x))
+        for x in range(w):
+            in1[x] = F32(_sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y,
+                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w,
+                                 h, C, x))
+        for x in range(w):
+            mx = mask_prev[y, x] * in0[x]
+            my = mask_cur[y, x] * in1[x]
+            T[y, x] = clamp_b((a + nb * (F32(1.0) - mx)) - a * (F32(1.0) - my), F32(0.0),
+                              F32(1.0))
+            holes[y, x] = (mx <= F32(0.0)) & (my <= F32(0.0))
+            G[y, x] = F32((mx > F32(0.0)) != (my > F32(0.0)))
+        for k in range(3):
+            for x in range(w):
+                r = _lerp_b(P[k, x], C[k, x], T[y, x])
+                out[k, y, x] = r if has_of else sval_b(r)
+        if has_of:
+            for x in range(w):
+                S[y, x] = _similarity(P, C, x, eps, eps2)
+
+
+@njit(**KERNEL)
+def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bias):
+    """interpolate_fsr3's optical-flow path after interp_game_kernel: the flow samples,
+    their lerp by T, the bias clamp(S_game / S_of, 0, 1) (1 where G), the final lerp and
+    the sanitising of the output."""
+    h, w = T.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    eps = F32(1e-6)
+    eps2 = F32(1e-6 * 1e-6)
+    for py in prange(h):
+        y = np.int64(py)
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        Po = np.empty((3, w), dtype=np.float32)
+        Co = np.empty((3, w), dtype=np.float32)
+        for x in range(w):
+            _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y, F32(x),
+                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w, h, Po, x)
+        for x in range(w):
+            _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
+                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w, h, Co, x)
+        for x in range(w):
+            s_of = _similarity(Po, Co, x, eps, eps2)
+            b = S[y, x] / (eps if s_of < eps else s_of)
+            b = F32(1.0) if s_of <= F32(0.0) else b
+            b = clamp_b(b, F32(0.0), F32(1.0))
+            bias[y, x] = F32(1.0) if (b != b) | (G[y, x] != F32(0.0)) else b
+        for k in range(3):
+            for x in range(w):
+                cof = _lerp_b(Po[k, x], Co[k, x], T[y, x])
+                out[k, y, x] = sval_b(_lerp_b(cof, out[k, y, x], bias[y, x]))
