@@ -43,6 +43,9 @@ KERNEL_OPS = {
     "reproject_fill": "fgcli.ops.gffe",
     "disocclusion_masks": "fgcli.ops.fsr3",
     "interpolate_fsr3": "fgcli.ops.fsr3",
+    "fill_vector_field": "fgcli.ops.fsr3",
+    "inpaint_color": "fgcli.ops.fsr3",
+    "avg_pool2": "fgcli.ops.pyramid",
 }
 
 

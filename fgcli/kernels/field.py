@@ -9,9 +9,11 @@ identical to the reference."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, clamp_b
+from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, smv_b, sval_b
+from fgcli.kernels._intrin import fma
+from fgcli.kernels.warp import _coords
 
 _PRIMARY = np.int64(1) << np.int64(31)
 
@@ -103,3 +105,87 @@ def depth_scatter_kernel(pos, depth, h, w, thr, buf):
                      (yb * w2 + xb, t11)):
             if t and z < buf[q]:
                 buf[q] = z
+
+
+# ----------------------------------------------------------------------------- entries
+
+_LR, _LG, _LB = F32(0.2126), F32(0.7152), F32(0.0722)  # fgcli.ops.color.REC709_LUMA
+
+
+@njit(**INLINE)
+def half_bits(v):
+    """IEEE binary16 bits (round to nearest even) of a finite float32 within +-65504, as
+    torch's ``.to(torch.float16).view(torch.int16) & 0xFFFF`` (checked against torch for
+    every such float32). numba has no float16 type."""
+    x = np.int64(np.float32(v).view(np.int32)) & np.int64(0xFFFFFFFF)
+    sign = (x >> 16) & 0x8000
+    a = x & 0x7FFFFFFF
+    # a subnormal half (|v| < 2**-14) is the integer multiple of 2**-24, rounded to even
+    sub = np.int64(np.rint(abs(v) * F32(16777216.0)))
+    nrm = (a + 0xFFF + ((a >> 13) & 1) - 0x38000000) >> 13
+    return sign | (sub if a < 0x38800000 else nrm)
+
+
+@njit(**INLINE)
+def _lum(c, y, x):
+    """luminance(sanitize_values(c)) at one pixel."""
+    return (sval_b(c[0, y, x]) * _LR + sval_b(c[1, y, x]) * _LG) + sval_b(c[2, y, x]) * _LB
+
+
+@njit(**INLINE)
+def _pack(prio, comp):
+    """pack_entries for one component: prio << 16 | half bits of the clamped component."""
+    c = clamp_b(comp, F32(-65504.0), F32(65504.0))
+    return (prio << 16) | half_bits(c)
+
+
+@njit(**KERNEL)
+def entries_kernel(c0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
+    """fgcli.ops.fsr3.field_entries per pixel: frame 0's luminance read bilinearly at
+    p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
+    luminance at p, the packed primary entries of both components (keys (2, H, W) int64)
+    and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha)."""
+    h, w = hi.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for py in prange(h):
+        y = np.int64(py)
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        s0 = np.empty(w, dtype=np.float32)
+        ins = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            vx = smv_b(vec[0, y, x])
+            vy = smv_b(vec[1, y, x])
+            xf = F32(x)
+            ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
+                         & (vy < hi_y))
+            zero = (vx == F32(0.0)) & (vy == F32(0.0))
+            y0, x0, y1, x1, nw, ne, sw, se = _coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                                     hm1, w, h)
+            r = fma(sval_b(_lum(c0, y1, x1)), se,
+                    fma(sval_b(_lum(c0, y1, x0)), sw,
+                        fma(sval_b(_lum(c0, y0, x1)), ne, sval_b(_lum(c0, y0, x0)) * nw)))
+            s0[x] = sval_b(_lum(c0, y, x)) if zero else r
+        for x in range(w):
+            vx = smv_b(vec[0, y, x])
+            vy = smv_b(vec[1, y, x])
+            a = s0[x]
+            b = _lum(c1, y, x)
+            a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
+            b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
+            r = (a if a < b else b) / (b if a < b else a)
+            r = F32(1.0) if r != r else r
+            lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
+            lo = lo if ins[x] != F32(0.0) else np.int64(0)
+            hv = hi[y, x]
+            hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
+            prio = (hv << 5) | lo | 32768
+            keys[0, y, x] = _pack(prio, vx)
+            keys[1, y, x] = _pack(prio, vy)
+            pos[0, y, x] = F32(x) + vx * a1
+            pos[1, y, x] = yf + vy * a1

@@ -339,6 +339,34 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
     return out, holes, bias
 
 
+def avg_pool2(x):
+    """fgcli.ops.pyramid.avg_pool2 (one mip level) by the numba kernel."""
+    from fgcli.ops.pyramid import avg_pool2 as ref
+
+    if x.device.type != "cpu" or x.dim() != 3 or x.dtype != torch.float32:
+        return ref(x)
+    from fgcli.kernels.pyramid import pool2_kernel
+
+    c, h, w = x.shape
+    out = _empty(c, (h + 1) // 2, (w + 1) // 2)
+    pool2_kernel(_a(x), out.numpy())
+    return out
+
+
+def fill_vector_field(vec, priority, valid):
+    """fgcli.ops.fsr3.fill_vector_field with the pyramid levels by the numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2)
+
+
+def inpaint_color(color, holes, decay=10.0):
+    """fgcli.ops.fsr3.inpaint_color with the pyramid levels by the numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    return FS.inpaint_color(color, holes, decay, pool=avg_pool2)
+
+
 # ----------------------------------------------------------------------------- start-up
 
 
@@ -367,7 +395,8 @@ _GROUPS = (
                          0.02, 0.13, static_from=i["gf"]),
      lambda i: any_nonzero(i["mv"]),
      lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"]),
-     lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"])),
+     lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"]),
+     lambda i: avg_pool2(i["c"])),
     (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
      lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
@@ -388,7 +417,7 @@ def _warm_group(k: int) -> None:
 def _cache_cold() -> bool:
     """True when some kernel has no on-disk cache index yet (a fresh install). A stale index
     (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
-    from fgcli.kernels import blend, field, fill, flow, fsr3, splat, warp
+    from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, splat, warp
 
     kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
                fill.gap_fill_kernel,
@@ -396,7 +425,7 @@ def _cache_cold() -> bool:
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
                flow.block_search_kernel, field.field_scatter_kernel,
                field.depth_scatter_kernel, fsr3.disocclusion_kernel,
-               fsr3.interp_game_kernel, fsr3.interp_flow_kernel)
+               fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel)
     from fgcli.kernels import geom
 
     kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
@@ -470,6 +499,26 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
                                subpixel)
 
 
+def _field_entries(color0, color1, vec, hi, alpha):
+    """fgcli.ops.fsr3.field_entries by the numba kernel: (vf (2, N), pos (2, N), keys
+    [(N,), (N,)] int64, (h, w, alpha))."""
+    from fgcli.ops import fsr3 as FS
+
+    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel():
+        vf, pos, _, _, keys, hwa = FS.field_entries(color0, color1, vec, hi, alpha)
+        return vf, pos, keys, hwa
+    color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
+    from fgcli.kernels.field import entries_kernel
+
+    h, w = vec.shape[-2:]
+    gxn, gyn, kx, ky = _grid(h, w)
+    pos, keys = _empty(2, h, w), _empty(2, h, w, dtype=torch.int64)
+    entries_kernel(_a(color0), _a(color1), _a(vec), _a(hi).reshape(h, w), F32(1.0 - a), gxn,
+                   gyn, kx, ky, pos.numpy(), keys.numpy())
+    vf = R.sanitize_mv(vec).reshape(2, -1)
+    return vf, pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a)
+
+
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
                  tap_threshold=0.05, length_bound=None):
     """fgcli.ops.fsr3.vector_field: the entries by the reference's torch code, the
@@ -481,7 +530,7 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
                                tap_threshold, length_bound)
     from fgcli.kernels.field import field_scatter_kernel
 
-    vf, pos, hi, lo, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
+    vf, pos, keys, (h, w, a) = _field_entries(color0, color1, vec, hi, alpha)
     n = (h + 2) * (w + 2)
     buf = np.zeros((2, n), dtype=np.int64)
     steps = 0

@@ -167,15 +167,20 @@ def pack_entries(primary: bool, hi: torch.Tensor, lo: torch.Tensor, comp: torch.
     return (prio << 16) | (bits.to(torch.int64) & 0xFFFF)
 
 
-def field_entries(color0, color1, vec, hi, alpha):
-    """The per-source part of vector_field: (vf (2, N) sanitised vectors, pos (2, N) =
-    p + (1 - alpha) vf, hi (N,), lo (N,), keys [x, y] (N,) int64 primary entries,
-    (h, w, alpha))."""
+def entries_args(color0, color1, vec, alpha):
+    """field_entries' checked inputs: (color0, color1, vec, alpha)."""
     color0 = check_tensor(color0, "color0", 3, allow_batch=False)
     color1 = check_tensor(color1, "color1", 3, allow_batch=False)
     vec = check_tensor(vec, "vec", 2, allow_batch=False)
     check_same(color0, "color0", (color1, "color1"), (vec, "vec"))
-    a = check_alpha(alpha)
+    return color0, color1, vec, check_alpha(alpha)
+
+
+def field_entries(color0, color1, vec, hi, alpha):
+    """The per-source part of vector_field: (vf (2, N) sanitised vectors, pos (2, N) =
+    p + (1 - alpha) vf, hi (N,), lo (N,), keys [x, y] (N,) int64 primary entries,
+    (h, w, alpha))."""
+    color0, color1, vec, a = entries_args(color0, color1, vec, alpha)
     h, w = vec.shape[-2:]
     v = sanitize_mv(vec)
     s0, inside = backward_warp(luminance(sanitize_values(color0)), v)
@@ -270,7 +275,8 @@ def unpack_vector_field(field: torch.Tensor):
     return vec * valid, prio, valid
 
 
-def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Tensor):
+def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Tensor,
+                      pool=None):
     """FSR 3 vector-field inpainting: texels never written take the first coarser level
     of a priority-weighted mip pyramid of the written vectors that has data (bilinear taps
     weighted by priority; pyramid_inpaint mode 'first').
@@ -278,7 +284,7 @@ def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Te
     vec (2, H, W), priority (1, H, W) int, valid (1, H, W) bool -> (vec (2, H, W),
     filled (1, H, W) bool: had no entry and got one). An all-empty field stays 0."""
     wgt = priority.to(torch.float32) / 65535.0 * valid
-    out, filled = pyramid_inpaint(vec, wgt, ~valid, mode="first")
+    out, filled = pyramid_inpaint(vec, wgt, ~valid, mode="first", pool=pool)
     return out, filled
 
 
@@ -625,8 +631,9 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
     return sanitize_values(out), holes, bias
 
 
-def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0):
+def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0, pool=None):
     """FSR 3 colour inpainting: hole pixels take pyramid_inpaint mode 'blend' of the valid
     interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W)."""
-    out, _ = pyramid_inpaint(color, (~holes).to(torch.float32), holes, mode="blend", decay=decay)
+    out, _ = pyramid_inpaint(color, (~holes).to(torch.float32), holes, mode="blend", decay=decay,
+                             pool=pool)
     return out

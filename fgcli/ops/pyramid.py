@@ -29,14 +29,22 @@ from fgcli.ops._util import (check_choice, check_same, check_tensor, reads_back,
 PYRAMID_MODES = ("first", "blend")
 
 
+def avg_pool2(x: torch.Tensor) -> torch.Tensor:
+    """One coarser level: 2x2 box averages, (C, H, W) -> (C, ceil(H/2), ceil(W/2)) (the
+    last row / column of an odd size averages what exists)."""
+    return F.avg_pool2d(x[None], 2, ceil_mode=True)[0]
+
+
 def weighted_pyramid(values: torch.Tensor, weight: torch.Tensor,
-                     levels: int | None = None) -> list[torch.Tensor]:
+                     levels: int | None = None, pool=None) -> list[torch.Tensor]:
     """Premultiplied mip chain.
 
     Args:
         values: (C, H, W) float (NaN/inf sanitised: NaN -> 0, inf -> 1e30).
         weight: (1, H, W) float >= 0 (negative/NaN read as 0).
         levels: number of levels including level 0 (default: down to 1x1).
+        pool: the level function (default avg_pool2; the numba backend passes its kernel,
+            fgcli.kernels.ops.avg_pool2, which gives the same values).
 
     Returns:
         list of (C + 1, h_i, w_i) tensors, h_i = ceil(H / 2**i): channels ``w * v`` then
@@ -50,7 +58,7 @@ def weighted_pyramid(values: torch.Tensor, weight: torch.Tensor,
     lev = [torch.cat([v * w, w], 0)]
     h, wd = values.shape[-2:]
     while (h > 1 or wd > 1) and (levels is None or len(lev) < levels):
-        lev.append(F.avg_pool2d(lev[-1][None], 2, ceil_mode=True)[0])
+        lev.append((pool or avg_pool2)(lev[-1]))
         h, wd = lev[-1].shape[-2:]
     return lev
 
@@ -68,7 +76,7 @@ def _sample_level(level: torch.Tensor, i: int, xs: torch.Tensor, ys: torch.Tenso
 
 def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
                     holes: torch.Tensor | None = None, mode: str = "blend",
-                    decay: float = 10.0, eps: float = 1e-12):
+                    decay: float = 10.0, eps: float = 1e-12, pool=None):
     """Fill holes of an image from a weighted mip pyramid (see the module docstring).
 
     Args:
@@ -78,6 +86,7 @@ def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
         mode: 'blend' (FSR 3 colour inpainting, level weights (1 - i/decay)^3) or 'first'
             (FSR 3 vector-field inpainting: first coarser level with data).
         decay: > 0, the level-weight falloff of 'blend'.
+        pool: the pyramid's level function (see weighted_pyramid).
 
     Returns:
         (out (C, H, W), filled (1, H, W) bool): out equals the (sanitised) input outside
@@ -106,7 +115,7 @@ def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
     if idx.numel() == 0:
         return out, filled
     w_ = wclean.masked_fill(holes, 0.0)
-    lev = weighted_pyramid(values, w_)
+    lev = weighted_pyramid(values, w_, pool=pool)
     ys = torch.div(idx, w, rounding_mode="floor").to(torch.float32)
     xs = (idx % w).to(torch.float32)
     n = idx.numel()

@@ -92,15 +92,17 @@ class FSR3FieldFill(Stage):
             "the priority-weighted mip pyramid of valid vectors (shared pyramid op).")
     inputs = ("game_field",)
     outputs = ("game_mv", "game_holes")
+    uses_kernels = True
 
     def run(self, ctx):
+        from fgcli.kernels import op
         from fgcli.ops._util import reads_back
-        from fgcli.ops.fsr3 import fill_vector_field, unpack_vector_field
+        from fgcli.ops.fsr3 import unpack_vector_field
 
         vec, prio, valid = unpack_vector_field(ctx["game_field"])
         if reads_back(valid) and bool(valid.all()):  # (the GPU fills: no holes, no change)
             return {"game_mv": vec, "game_holes": ~valid}
-        out, _ = fill_vector_field(vec, prio, valid)
+        out, _ = op("fill_vector_field", ctx)(vec, prio, valid)
         return {"game_mv": out, "game_holes": ~valid}
 
 
@@ -131,8 +133,8 @@ class FSR3OpticalFlow(Stage):
     def run(self, ctx):
         from fgcli.ops._util import reads_back
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import (dis_flow, fill_vector_field, luma8, magnitude_priority,
-                                    unpack_vector_field, upsample_block_flow)
+        from fgcli.ops.fsr3 import (dis_flow, luma8, magnitude_priority, unpack_vector_field,
+                                    upsample_block_flow)
 
         c0, c1 = ctx["color0"], ctx["color1"]
         l0, l1 = luma8(c0), luma8(c1)
@@ -148,7 +150,7 @@ class FSR3OpticalFlow(Stage):
                                         secondary=False)
         vec, prio, valid = unpack_vector_field(field)
         if not reads_back(valid) or not bool(valid.all()):
-            vec, _ = fill_vector_field(vec, prio, valid)
+            vec, _ = op("fill_vector_field", ctx)(vec, prio, valid)
         return {"of_mv": vec}
 
 
@@ -241,6 +243,7 @@ class FSR3Inpaint(Stage):
             "(shared pyramid op).")
     inputs = ("color", "fsr3_holes")
     outputs = ("color",)
+    uses_kernels = True
     options = (Option("decay", "float", 10.0, "level-weight falloff: (1 - i/decay)^3",
                       range=(1.0, 64.0)),)
 
@@ -255,6 +258,6 @@ class FSR3Inpaint(Stage):
         return {"color": ctx["color"]}
 
     def run(self, ctx):
-        from fgcli.ops.fsr3 import inpaint_color
+        from fgcli.kernels import op
 
-        return {"color": inpaint_color(ctx["color"], ctx["fsr3_holes"], self.decay)}
+        return {"color": op("inpaint_color", ctx)(ctx["color"], ctx["fsr3_holes"], self.decay)}
