@@ -410,6 +410,20 @@ def test_half_bits():
     assert torch.equal(torch.from_numpy(out), ref)
 
 
+def test_unpack_vector_field():
+    """Every binary16 pattern (NaN, inf, subnormals, -0.0) in both components, written and
+    unwritten texels, against the reference."""
+    from fgcli.ops import fsr3
+
+    b = torch.arange(65536, dtype=torch.int64)
+    prio = torch.randint(0, 65536, (65536,), generator=torch.Generator().manual_seed(1))
+    prio[::7] = 0  # unwritten
+    f = torch.stack([(prio << 16) | b, (prio << 16) | b.flip(0)]).view(2, 256, 256)
+    k, r = K.unpack_vector_field(f), fsr3.unpack_vector_field(f)
+    same_result("unpack", k, r)
+    assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
+
+
 @pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 5), (5, 1), (1, 1), (3, 3)])
 def test_pyramid_level_and_fills(h, w):
     """The mip level kernel against avg_pool2d(ceil_mode) bit for bit (odd edges, zeros,

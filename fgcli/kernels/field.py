@@ -189,3 +189,36 @@ def entries_kernel(c0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
             keys[1, y, x] = _pack(prio, vy)
             pos[0, y, x] = F32(x) + vx * a1
             pos[1, y, x] = yf + vy * a1
+
+
+@njit(**INLINE)
+def half_value(b):
+    """The float32 value of binary16 bits b (0..0xFFFF), then NaN -> 0 and +-inf ->
+    +-65504 (unpack_vector_field's nan_to_num); exact, as torch's conversion."""
+    sign = (b >> 15) & 1
+    e = (b >> 10) & 0x1F
+    m = b & 0x3FF
+    sub = F32(m) * F32(5.960464477539063e-08)  # m * 2**-24, exact
+    nrm = np.int32(((e + 112) << 23) | (m << 13)).view(np.float32)
+    v = sub if e == 0 else nrm
+    v = F32(65504.0) if e == 31 else v
+    v = -v if sign == 1 else v
+    return F32(0.0) if (e == 31) & (m != 0) else v
+
+
+@njit(**KERNEL)
+def unpack_kernel(field, vec, prio, valid):
+    """fgcli.ops.fsr3.unpack_vector_field: field (2, H, W) int64 -> vec (2, H, W) float32
+    (times valid, as the reference's product: -0.0 for a negative unwritten component),
+    prio (H, W) int64 (16 bits of the y entry), valid (H, W) bool."""
+    h, w = prio.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            p = (field[1, y, x] >> 16) & 0xFFFF
+            ok = p > 0
+            prio[y, x] = p
+            valid[y, x] = ok
+            m = F32(ok)
+            vec[0, y, x] = half_value(field[0, y, x] & 0xFFFF) * m
+            vec[1, y, x] = half_value(field[1, y, x] & 0xFFFF) * m

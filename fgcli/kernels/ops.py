@@ -396,7 +396,8 @@ _GROUPS = (
      lambda i: any_nonzero(i["mv"]),
      lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"]),
      lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"]),
-     lambda i: avg_pool2(i["c"])),
+     lambda i: avg_pool2(i["c"]),
+     lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64))),
     (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
      lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
@@ -425,7 +426,8 @@ def _cache_cold() -> bool:
                blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
                flow.block_search_kernel, field.field_scatter_kernel,
                field.depth_scatter_kernel, fsr3.disocclusion_kernel,
-               fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel)
+               fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
+               field.entries_kernel, field.unpack_kernel)
     from fgcli.kernels import geom
 
     kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
@@ -517,6 +519,22 @@ def _field_entries(color0, color1, vec, hi, alpha):
                    gyn, kx, ky, pos.numpy(), keys.numpy())
     vf = R.sanitize_mv(vec).reshape(2, -1)
     return vf, pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a)
+
+
+def unpack_vector_field(field):
+    """fgcli.ops.fsr3.unpack_vector_field by the numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2 or \
+            field.device.type != "cpu" or field.dtype != torch.int64:
+        return FS.unpack_vector_field(field)
+    from fgcli.kernels.field import unpack_kernel
+
+    h, w = field.shape[-2:]
+    vec, prio = _empty(2, h, w), _empty(1, h, w, dtype=torch.int64)
+    valid = _empty(1, h, w, dtype=torch.bool)
+    unpack_kernel(_a(field), vec.numpy(), prio.numpy()[0], valid.numpy()[0])
+    return vec, prio, valid
 
 
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,

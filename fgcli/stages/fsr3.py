@@ -97,9 +97,7 @@ class FSR3FieldFill(Stage):
     def run(self, ctx):
         from fgcli.kernels import op
         from fgcli.ops._util import reads_back
-        from fgcli.ops.fsr3 import unpack_vector_field
-
-        vec, prio, valid = unpack_vector_field(ctx["game_field"])
+        vec, prio, valid = op("unpack_vector_field", ctx)(ctx["game_field"])
         if reads_back(valid) and bool(valid.all()):  # (the GPU fills: no holes, no change)
             return {"game_mv": vec, "game_holes": ~valid}
         out, _ = op("fill_vector_field", ctx)(vec, prio, valid)
@@ -133,8 +131,7 @@ class FSR3OpticalFlow(Stage):
     def run(self, ctx):
         from fgcli.ops._util import reads_back
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import (dis_flow, luma8, magnitude_priority, unpack_vector_field,
-                                    upsample_block_flow)
+        from fgcli.ops.fsr3 import dis_flow, luma8, magnitude_priority, upsample_block_flow
 
         c0, c1 = ctx["color0"], ctx["color1"]
         l0, l1 = luma8(c0), luma8(c1)
@@ -148,7 +145,7 @@ class FSR3OpticalFlow(Stage):
             f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
         field = op("vector_field", ctx)(c0, c1, f, magnitude_priority(f), ctx["alpha"],
                                         secondary=False)
-        vec, prio, valid = unpack_vector_field(field)
+        vec, prio, valid = op("unpack_vector_field", ctx)(field)
         if not reads_back(valid) or not bool(valid.all()):
             vec, _ = op("fill_vector_field", ctx)(vec, prio, valid)
         return {"of_mv": vec}
