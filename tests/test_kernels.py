@@ -373,6 +373,18 @@ def test_fsr3_masks_and_interpolation(h, w):
         for o in (None, of, v * 0):
             same_result(f"interp a={a}", K.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o),
                         fsr3.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o))
+        d0 = d.flip(-1).clone()
+        d0[0, :1] = NAN
+        d0[0, 1:2, :3] = -1.0
+        dt = d.clone()
+        dt[0, ::2] = INF
+        dt[0, -1, :2] = NAN
+        v2 = v.clone()
+        v2[0, -1:] = NAN
+        for dd in ((d0, d), (None, None)):
+            k = K.interpolated_depth(dt, v2, a, *dd)
+            r = fsr3.interpolated_depth(dt, v2, a, *dd)
+            assert torch.equal(k.view(torch.int32), r.view(torch.int32)), "depth"
     # display space runs the reference
     one = torch.ones(1, h, w)
     same_result("display", K.interpolate_fsr3(c0, c1, v, one, one, 0.5, of, "display"),

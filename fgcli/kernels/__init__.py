@@ -47,6 +47,7 @@ KERNEL_OPS = {
     "inpaint_color": "fgcli.ops.fsr3",
     "avg_pool2": "fgcli.ops.pyramid",
     "unpack_vector_field": "fgcli.ops.fsr3",
+    "interpolated_depth": "fgcli.ops.fsr3",
 }
 
 

@@ -20,9 +20,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
+                                   smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
-from fgcli.kernels.warp import _bil, _coords
+from fgcli.kernels.warp import _bil, _coords, _nearest_depth
 
 
 @njit(**INLINE)
@@ -208,3 +209,28 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
             for x in range(w):
                 cof = _lerp_b(Po[k, x], Co[k, x], T[y, x])
                 out[k, y, x] = sval_b(_lerp_b(cof, out[k, y, x], bias[y, x]))
+
+
+@njit(**KERNEL)
+def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
+    """interpolated_depth: sanitize_depth(depth_t), and where that is +inf the minimum of
+    the sanitised depth0 at the nearest pixel to q + a v and depth1 at q + na v (a =
+    alpha, na = -(1 - alpha), float32)."""
+    h, w = depth_t.shape
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for py in prange(h):
+        y = np.int64(py)
+        yf = F32(y)
+        for x in range(w):
+            z = sdepth_b(depth_t[y, x])
+            if z == INF:
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                xf = F32(x)
+                z0 = sdepth_b(_nearest_depth(depth0, sflow_b(vx * a), sflow_b(vy * a), xf, yf,
+                                             wm1, hm1))
+                z1 = sdepth_b(_nearest_depth(depth1, sflow_b(vx * na), sflow_b(vy * na), xf,
+                                             yf, wm1, hm1))
+                z = z0 if z0 < z1 else z1
+            out[y, x] = z

@@ -15,6 +15,7 @@ from fgcli.ops._util import (ALPHA_MAX, aux, check_alpha, check_same,
                              check_tensor)
 
 F32 = np.float32
+INF = float("inf")
 _DUMMY3 = np.zeros((1, 1, 1), dtype=np.float32)
 _DUMMY2 = np.zeros((1, 1), dtype=np.float32)
 _DUMMYB = np.zeros((1, 1), dtype=np.bool_)
@@ -339,6 +340,23 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
     return out, holes, bias
 
 
+def interpolated_depth(depth_t, vec, alpha=0.5, depth0=None, depth1=None):
+    """fgcli.ops.fsr3.interpolated_depth by the numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if depth0 is None or depth1 is None or not _cpu(depth_t, vec, depth0, depth1) or \
+            any(t.shape[0] != 1 or t.dtype != torch.float32 for t in (depth_t, depth0, depth1)):
+        return FS.interpolated_depth(depth_t, vec, alpha, depth0, depth1)
+    a = check_alpha(alpha)
+    from fgcli.kernels.fsr3 import interp_depth_kernel
+
+    h, w = depth_t.shape[-2:]
+    out = _empty(1, h, w)
+    interp_depth_kernel(_a(depth_t)[0], _a(depth0)[0], _a(depth1)[0], _a(vec), F32(a),
+                        F32(-(1.0 - a)), out.numpy()[0])
+    return out
+
+
 def avg_pool2(x):
     """fgcli.ops.pyramid.avg_pool2 (one mip level) by the numba kernel."""
     from fgcli.ops.pyramid import avg_pool2 as ref
@@ -397,6 +415,7 @@ _GROUPS = (
      lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"]),
      lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"]),
      lambda i: avg_pool2(i["c"]),
+     lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"]),
      lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64))),
     (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
      lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
@@ -427,7 +446,7 @@ def _cache_cold() -> bool:
                flow.block_search_kernel, field.field_scatter_kernel,
                field.depth_scatter_kernel, fsr3.disocclusion_kernel,
                fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
-               field.entries_kernel, field.unpack_kernel)
+               field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
     from fgcli.kernels import geom
 
     kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)

@@ -631,6 +631,26 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
     return sanitize_values(out), holes, bias
 
 
+def interpolated_depth(depth_t: torch.Tensor, vec: torch.Tensor, alpha: float = 0.5,
+                       depth0: torch.Tensor | None = None,
+                       depth1: torch.Tensor | None = None) -> torch.Tensor:
+    """The generated frame's depth: the reconstructed interpolated depth, and where nothing
+    was splatted (+inf: holes and sky) the nearer of frame 0's depth at ``q + alpha v`` and
+    frame 1's at ``q - (1 - alpha) v`` (nearest pixel), when both frames' depths are given.
+    (1, H, W), vec (2, H, W) px -> (1, H, W)."""
+    from fgcli.ops.warp import sample_nearest
+
+    a = check_alpha(alpha)
+    vec = sanitize_mv(vec)
+    depth = sanitize_depth(depth_t)
+    if depth0 is not None and depth1 is not None and (not reads_back(depth)
+                                                      or bool(torch.isinf(depth).any())):
+        d0, _ = sample_nearest(sanitize_depth(depth0), vec * a)
+        d1, _ = sample_nearest(sanitize_depth(depth1), vec * -(1.0 - a))
+        depth = torch.where(torch.isinf(depth), torch.minimum(d0, d1), depth)
+    return depth
+
+
 def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0, pool=None):
     """FSR 3 colour inpainting: hole pixels take pyramid_inpaint mode 'blend' of the valid
     interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W)."""

@@ -207,24 +207,17 @@ class FSR3Interpolate(Stage):
                       choices=("linear", "display")),)
 
     def run(self, ctx):
-        import torch
-
-        from fgcli.ops import sample_nearest, sanitize_depth, sanitize_mv
-        from fgcli.ops._util import reads_back
         from fgcli.kernels import op
+        from fgcli.ops import sanitize_mv
 
         a = ctx["alpha"]
         v = sanitize_mv(ctx["game_mv"])
         color, holes, bias = op("interpolate_fsr3", ctx)(ctx["color0"], ctx["color1"], v,
                                                          ctx["mask_prev"], ctx["mask_cur"], a,
                                                          ctx.get("of_mv"), self.space)
-        depth = sanitize_depth(ctx["depth_t"])
-        if ctx.get("depth0") is not None and (not reads_back(depth)
-                                              or bool(torch.isinf(depth).any())):
-            # nothing splatted there (and sky): the nearer of the two sampled depths
-            d0, _ = sample_nearest(sanitize_depth(ctx["depth0"]), v * a)
-            d1, _ = sample_nearest(sanitize_depth(ctx["depth1"]), v * -(1.0 - a))
-            depth = torch.where(torch.isinf(depth), torch.minimum(d0, d1), depth)
+        # nothing splatted (and sky): the nearer of the two sampled depths
+        depth = op("interpolated_depth", ctx)(ctx["depth_t"], v, a, ctx.get("depth0"),
+                                              ctx.get("depth1"))
         prev = float(ctx.get("prev_time") or 0.0)
         # q + alpha v is where the surface was at time 0; toward the previous output time
         mv = v * (a - prev) if a > prev else v * a
