@@ -136,15 +136,15 @@ class FSR3OpticalFlow(Stage):
         c0, c1 = ctx["color0"], ctx["color1"]
         l0, l1 = luma8(c0), luma8(c1)
         h, w = c1.shape[-2:]
-        if self.flow == "dis":
-            f = dis_flow(l0, l1)
-        else:
-            f = upsample_block_flow(op("block_flow", ctx)(l0, l1, self.levels, 8, self.search,
-                                                          self.median, self.subpixel), h, w, 8)
+        f = dis_flow(l0, l1) if self.flow == "dis" else \
+            op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
+                                  self.subpixel)
         if self.min_flow > 0:
             f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
-        field = op("vector_field", ctx)(c0, c1, f, magnitude_priority(f), ctx["alpha"],
-                                        secondary=False)
+        hi = magnitude_priority(f)
+        if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
+            f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
+        field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
         vec, prio, valid = op("unpack_vector_field", ctx)(field)
         if not reads_back(valid) or not bool(valid.all()):
             vec, _ = op("fill_vector_field", ctx)(vec, prio, valid)
