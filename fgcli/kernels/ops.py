@@ -517,7 +517,7 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
     if not _cpu(lum0, lum1):
         return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
-                               subpixel)
+                               subpixel, pool=avg_pool2)
 
 
 def _field_entries(color0, color1, vec, hi, alpha):

@@ -390,18 +390,22 @@ def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: i
 
 
 def block_flow_chain(level, lum0, lum1, levels=7, block=8, search=8, median=True,
-                     subpixel=False):
+                     subpixel=False, pool=None):
     """block_flow with the per-level search given: ``level(cur, prev, pred, block, search)``
     (integer vectors, as _block_level; the numba kernel of fgcli.kernels.ops has the same
-    signature). The sub-pixel refinement always runs _block_level."""
+    signature), and the pyramid's level function ``pool`` (default
+    fgcli.ops.pyramid.avg_pool2). The sub-pixel refinement always runs _block_level."""
+    from fgcli.ops.pyramid import avg_pool2
+
+    pool = pool or avg_pool2
     lum0 = check_tensor(lum0, "lum0", 1, allow_batch=False)
     lum1 = check_tensor(lum1, "lum1", 1, allow_batch=False)
     check_same(lum0, "lum0", (lum1, "lum1"))
     p0 = [torch.nan_to_num(lum0, nan=0.0).clamp(0.0, 255.0).round()]
     p1 = [torch.nan_to_num(lum1, nan=0.0).clamp(0.0, 255.0).round()]
     while len(p0) < levels and min(p0[-1].shape[-2:]) >= 2 * block:
-        p0.append(torch.round(F.avg_pool2d(p0[-1][None], 2, ceil_mode=True)[0]))
-        p1.append(torch.round(F.avg_pool2d(p1[-1][None], 2, ceil_mode=True)[0]))
+        p0.append(torch.round(pool(p0[-1])))
+        p1.append(torch.round(pool(p1[-1])))
     flow = None
     for lv in range(len(p0) - 1, -1, -1):
         h, w = p0[lv].shape[-2:]
