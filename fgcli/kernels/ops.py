@@ -514,7 +514,7 @@ def _block_level(cur, prev, pred, block, search):
 def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=False):
     from fgcli.ops import fsr3 as FS
 
-    if not _cpu(lum0, lum1):
+    if not _cpu(lum0, lum1) or block > 256:  # (the kernel's float32 SADs: exact below 2**24)
         return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
                                subpixel, pool=avg_pool2)
