@@ -41,6 +41,8 @@ KERNEL_OPS = {
     "project_background": "fgcli.ops.gffe",
     "project_border": "fgcli.ops.gffe",
     "reproject_fill": "fgcli.ops.gffe",
+    "push_pull_fill": "fgcli.ops.gffe",
+    "vector_rule_fill": "fgcli.ops.gffe",
     "disocclusion_masks": "fgcli.ops.fsr3",
     "interpolate_fsr3": "fgcli.ops.fsr3",
     "fill_vector_field": "fgcli.ops.fsr3",

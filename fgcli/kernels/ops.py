@@ -450,6 +450,12 @@ def _cache_cold() -> bool:
     from fgcli.kernels import geom
 
     kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
+    from fgcli.kernels import gffe
+
+    kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
+                gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
+                gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
+                gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel)
     try:
         import os
 
@@ -520,6 +526,34 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
                                subpixel, pool=avg_pool2)
 
 
+def _both(fn) -> None:
+    """fn(0) and fn(1) at once: fn(1) on a second thread (the serial scatter kernels are
+    nogil), fn(0) on this one; one after the other on a 1-core machine."""
+    import os
+    import threading
+
+    if (os.cpu_count() or 1) < 2:
+        fn(0)
+        fn(1)
+        return
+    err = []
+
+    def second():
+        try:
+            fn(1)
+        except BaseException as e:  # noqa: BLE001 - re-raised on the caller's thread
+            err.append(e)
+
+    t = threading.Thread(target=second, daemon=True)
+    t.start()
+    try:
+        fn(0)
+    finally:
+        t.join()
+    if err:
+        raise err[0]
+
+
 def _field_entries(color0, color1, vec, hi, alpha):
     """fgcli.ops.fsr3.field_entries by the numba kernel: (vf (2, N), pos (2, N), keys
     [(N,), (N,)] int64, (h, w, alpha))."""
@@ -579,8 +613,10 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
             d = _a(vf / dt.clamp(min=1e-6))
             dist = _a(dt)
     sec = np.zeros((2, n), dtype=np.int64) if steps >= 1 else buf[:, :1]
-    field_scatter_kernel(_a(pos), _a(keys[0]), _a(keys[1]), dist.reshape(-1), d, h, w,
-                         F32(tap_threshold), steps, buf, sec)
+    pos_a, dist = _a(pos), dist.reshape(-1)
+    # the components are independent serial scatters: one thread each (nogil kernels)
+    _both(lambda c: field_scatter_kernel(pos_a, _a(keys[c]), dist, d, h, w,
+                                         F32(tap_threshold), steps, buf[c], sec[c]))
     return FS._crop(torch.from_numpy(buf), h, w).clone()
 
 
@@ -593,12 +629,11 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
     from fgcli.kernels.field import depth_scatter_kernel
 
     d, pos, (h, w) = FS.depth_sources(depth, mv, alpha, short_mv)
-    outs = []
-    for p in pos:
-        buf = np.full((h + 2) * (w + 2), np.inf, dtype=np.float32)
-        depth_scatter_kernel(_a(p), _a(d), h, w, F32(tap_threshold), buf)
-        outs.append(FS._crop(torch.from_numpy(buf)[None], h, w).clone())
-    return outs[0], outs[1]
+    bufs = [np.full((h + 2) * (w + 2), np.inf, dtype=np.float32) for _ in pos]
+    da = _a(d)
+    # the two target times are independent serial scatters: one thread each
+    _both(lambda k: depth_scatter_kernel(_a(pos[k]), da, h, w, F32(tap_threshold), bufs[k]))
+    return tuple(FS._crop(torch.from_numpy(b)[None], h, w).clone() for b in bufs)
 
 
 # ----------------------------------------------------------------------------- gffe
@@ -723,7 +758,20 @@ def _warm_gffe(d) -> None:
     d[0, 0] = float("inf")
     cam = (np.eye(4), np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -1.0, -0.2],
                                 [0, 0, -1.0, 0]]))
-    project(unproject(d, cam), cam, tuple(d.shape[-2:]))
+    p = unproject(d, cam)
+    project(p, cam, tuple(d.shape[-2:]))
+    # the fused gffe ops (fgcli.kernels.gffe), once each
+    h, w = d.shape[-2:]
+    c = torch.rand(3, h, w, generator=torch.Generator().manual_seed(0))
+    mv = torch.zeros(2, h, w)
+    v = d < 1.5
+    dilate_trajectory(torch.stack([p, p]), d, cam, v)
+    warp_positions(c, p, cam)
+    layers = G.collect_background(c, d, v, cam, layer1_scale=1)
+    project_background(layers, cam, cam, ~v, "bilinear")
+    push_pull_fill(c, v, d)
+    reproject_fill(c, v, d, c, d, cam, cam)
+    vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
 
 
 # the gffe ops with these kernels for their camera geometry (the ops' ``geom`` argument;
@@ -743,9 +791,226 @@ def _with_geom(name: str):
 
 
 track_history = _with_geom("track_history")
-dilate_trajectory = _with_geom("dilate_trajectory")
-warp_positions = _with_geom("warp_positions")
 collect_background = _with_geom("collect_background")
-project_background = _with_geom("project_background")
 project_border = _with_geom("project_border")
-reproject_fill = _with_geom("reproject_fill")
+
+
+# the ops fused further (fgcli.kernels.gffe): the reference's glue around the geometry as
+# kernels too; anything they do not implement runs the reference with GEOM
+
+
+def _f32cpu(t, dim=3) -> bool:
+    return (isinstance(t, torch.Tensor) and t.device.type == "cpu"
+            and t.dtype == torch.float32 and t.dim() == dim and t.numel() > 0)
+
+
+def _boolcpu(t, shape) -> bool:
+    return (isinstance(t, torch.Tensor) and t.device.type == "cpu" and t.dtype == torch.bool
+            and tuple(t.shape) == tuple(shape))
+
+
+def _u8(t) -> np.ndarray:
+    """uint8 view of a bool tensor (the kernels' mask inputs; fgcli.kernels.gffe)."""
+    return _a(t).view(np.uint8)
+
+
+def _sample_where(img, flow, sel, base=None, fbase=None):
+    """(where(sel, backward_warp(img, flow, 'bilinear'), base or 0),
+    where(sel, flow, fbase or 0)) for a 3-channel img, by one kernel."""
+    from fgcli.kernels.gffe import sample_where_kernel
+
+    h, w = sel.shape[-2:]
+    gxn, gyn, kx, ky = _grid(h, w)
+    out, fout = _empty(3, h, w), _empty(2, h, w)
+    ia, fa = _a(img), _a(flow)
+    # without base / fbase, same-shape stand-ins (the kernel's selects read them)
+    sample_where_kernel(ia, fa, _u8(sel).reshape(h, w), ia if base is None else _a(base),
+                        base is not None, fa if fbase is None else _a(fbase),
+                        fbase is not None, gxn, gyn, kx, ky, out.numpy(), fout.numpy())
+    return out, fout
+
+
+def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True, geom=None):
+    """fgcli.ops.gffe.warp_positions: project (geom kernel), splat_motion and gap_fill
+    (their kernels), the bilinear read and the masking in one kernel."""
+    if filter != "bilinear" or not (_f32cpu(color1) and color1.shape[0] == 3
+                                    and _f32cpu(positions) and positions.shape[0] == 4
+                                    and positions.shape[1:] == color1.shape[1:]):
+        return G.warp_positions(color1, positions, cam_x, filter, crack_fill, geom=GEOM)
+    from fgcli.kernels.gffe import offsets_kernel
+
+    h, w = color1.shape[-2:]
+    px, py, dn, ok = project(positions, cam_x, (h, w))
+    disp = _empty(2, h, w)
+    offsets_kernel(px.numpy(), py.numpy(), _u8(ok), disp.numpy())
+    res = splat_motion(dn[None], disp, None, 1.0, model="linear", mode="extrap")
+    if crack_fill:
+        res = gap_fill(res, 0.01, "nearest")
+    col, mv = _sample_where(color1, res.to1, res.valid)
+    return {"color": col, "depth": res.depth, "mv": mv, "valid": res.valid}
+
+
+def dilate_trajectory(traj, depth1, cam1, dynamic=None, geom=None):
+    """fgcli.ops.gffe.dilate_trajectory: the dilation kernel, then the gathers and selects
+    in one kernel."""
+    ok = _f32cpu(traj, 4) and traj.shape[1] == 4 and _f32cpu(depth1) and \
+        depth1.shape == (1,) + tuple(traj.shape[-2:]) and \
+        (dynamic is None or _boolcpu(dynamic, depth1.shape))
+    if not ok:
+        return G.dilate_trajectory(traj, depth1, cam1, dynamic, geom=GEOM)
+    from fgcli.kernels.gffe import dilate_traj_kernel
+
+    k, _, h, w = traj.shape
+    a = aux(h, w, "cpu")
+    coords = torch.stack([a["xh"].expand(h, w), a["yh"].expand(h, w)])
+    dd, src = dilate_nearest_depth(depth1, coords)
+    pd = unproject(dd, cam1)
+    dyn = _u8(dynamic)[0] if dynamic is not None else np.zeros((h, w), dtype=np.uint8)
+    out = _empty(k, 4, h, w)
+    dilate_traj_kernel(_a(traj), _a(src), dyn, dynamic is not None, _a(pd), out.numpy())
+    return out
+
+
+def _splat_min(px, py, sc, dn, use, h, w):
+    """fgcli.ops.gffe._splat_min(floor(px / sc), floor(py / sc), dn, use, h, w) by one
+    kernel (px / 1.0 is px itself)."""
+    from fgcli.kernels.gffe import splat_min_kernel
+
+    src, dep = _empty(h, w, dtype=torch.int64), _empty(h, w)
+    buf = np.empty(h * w, dtype=np.int64)
+    hs, ws = dn.shape[-2:]
+    splat_min_kernel(_a(px).reshape(hs, ws), _a(py).reshape(hs, ws), F32(sc),
+                     _a(dn).reshape(hs, ws), _u8(use).reshape(hs, ws), h, w, buf,
+                     src.numpy(), dep.numpy())
+    return src, dep
+
+
+def _layer_ok(layer, shape) -> bool:
+    c, d, v = layer.get("color"), layer.get("depth"), layer.get("valid")
+    return (_f32cpu(c) and c.shape[0] == 3 and tuple(c.shape[1:]) == tuple(shape)
+            and _f32cpu(d) and tuple(d.shape) == (1,) + tuple(shape)
+            and _boolcpu(v, (1,) + tuple(shape)))
+
+
+def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None):
+    """fgcli.ops.gffe.project_background: the layers' geometry (geom kernels), both splats,
+    the choice between the layers and the bilinear reads as kernels."""
+    H, W = holes.shape[-2:]
+    ok = (isinstance(layers, (list, tuple)) and len(layers) == 2
+          and _boolcpu(holes, (1, H, W)) and filter in ("nearest", "bilinear")
+          and _layer_ok(layers[0], (H, W)))
+    if ok:
+        sc = G._layer_scale(layers[1], H, W)
+        h2, w2 = (H, W) if sc == 1.0 else G._half(H, W)
+        ok = _layer_ok(layers[1], (h2, w2))
+    if not ok:
+        return G.project_background(layers, cam_bg, cam_x, holes, filter, geom=GEOM)
+    from fgcli.kernels.gffe import bg_bilinear_kernel, bg_resolve_kernel
+
+    l0, l1 = layers
+    px, py, dn, fok = G._layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0, GEOM)
+    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
+    px1, py1, dn1, fok1 = G._layer_fragments(l1, cam_bg, cam_x, (H, W), sc, GEOM)
+    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    bil0 = filter == "bilinear"
+    bil1 = bil0 and sc == 1.0
+    c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
+    filled = _empty(1, H, W, dtype=torch.bool)
+    code = np.empty((H, W), dtype=np.uint8)
+    bg_resolve_kernel(s0.numpy(), d0.numpy(), s1.numpy(), d1.numpy(), sc == 2.0, F32(sc),
+                      _u8(holes)[0], _a(l0["color"]), _a(l1["color"]), bil0, bil1, c.numpy(),
+                      d.numpy()[0], m.numpy(), _u8(filled)[0], code)
+    if bil0:
+        l1v = _u8(l1["valid"])[0]
+        bg_bilinear_kernel(code, s0.numpy(), s1.numpy(), _a(l0["color"]), _a(l0["depth"])[0],
+                           _u8(l0["valid"])[0], px.numpy(), py.numpy(), _a(l1["color"]),
+                           _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
+                           _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
+    return c, d, m, filled
+
+
+def push_pull_fill(color, valid, depth=None, far_bias=0.1):
+    """fgcli.ops.gffe.push_pull_fill (3-channel colour, with depth, far_bias >= 0) by the
+    push-pull kernels of fgcli.kernels.gffe, one pass per level and direction."""
+    ok = (_f32cpu(color) and color.shape[0] == 3 and color.shape[1] * color.shape[2] > 1
+          and _f32cpu(depth) and tuple(depth.shape) == (1,) + tuple(color.shape[1:])
+          and _boolcpu(valid, depth.shape) and float(far_bias) >= 0)
+    if not ok:
+        return G.push_pull_fill(color, valid, depth, far_bias)
+    from fgcli.kernels.gffe import (pp_down_kernel, pp_final_kernel, pp_prep_kernel,
+                                    pp_up_kernel)
+
+    h, w = color.shape[-2:]
+    col, dep, val = _a(color), _a(depth)[0], _u8(valid)[0]
+    xd0, w0, wd0 = (np.empty((h, w), dtype=np.float32) for _ in range(3))
+    pp_prep_kernel(dep, val, xd0, w0, wd0)
+    fb = F32(1.0 - float(far_bias))
+    levels = [(col, xd0, w0, wd0)]
+    while h > 1 or w > 1:
+        h, w = (h + 1) // 2, (w + 1) // 2
+        nxt = (np.empty((3, h, w), dtype=np.float32),) + tuple(
+            np.empty((h, w), dtype=np.float32) for _ in range(3))
+        pp_down_kernel(*levels[-1], fb, *nxt)
+        levels.append(nxt)
+    filled = levels[-1]
+    for lv in reversed(levels[1:-1]):
+        hh, ww = lv[1].shape
+        out = (np.empty((3, hh, ww), dtype=np.float32),) + tuple(
+            np.empty((hh, ww), dtype=np.float32) for _ in range(3))
+        pp_up_kernel(*lv, *filled, *out)
+        filled = out
+    H, W = color.shape[-2:]
+    out_c, out_d = _empty(3, H, W), _empty(1, H, W)
+    pp_final_kernel(col, dep, val, xd0, wd0, filled[0], filled[1], filled[3], out_c.numpy(),
+                    out_d.numpy()[0])
+    return out_c, out_d
+
+
+def reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol=0.05,
+                   offscreen="clamp", border=None, geom=None):
+    """fgcli.ops.gffe.reproject_fill: the proxy geometry (geom kernels), the proxy test
+    and the bilinear read as kernels. With a border: the reference (geom kernels)."""
+    H, W = color.shape[-2:]
+    ok = (border is None and offscreen in ("clamp", "skip") and _f32cpu(color)
+          and color.shape[0] == 3 and _f32cpu(color1) and color1.shape == color.shape
+          and _f32cpu(depth) and _f32cpu(depth1) and depth.shape == (1, H, W)
+          and depth1.shape == (1, H, W) and _boolcpu(valid, (1, H, W)))
+    if not ok:
+        return G.reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol,
+                                offscreen, border, geom=GEOM)
+    from fgcli.kernels.gffe import reproject_took_kernel
+
+    X = unproject(depth, cam_x)
+    px, py, _, pok = project(X, cam1, (H, W))
+    took = _empty(1, H, W, dtype=torch.bool)
+    flow = _empty(2, H, W)
+    reproject_took_kernel(px.numpy(), py.numpy(), _u8(pok), _u8(valid)[0], _a(depth)[0],
+                          _a(depth1)[0], offscreen == "clamp", F32(1.0 - float(depth_tol)),
+                          _u8(took)[0], flow.numpy())
+    out, _ = _sample_where(color1, flow, took, base=color)
+    return out, flow, took
+
+
+def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
+                     depth_threshold_rel=1e-3):
+    """fgcli.ops.gffe.vector_rule_fill: the extrapolation rule on the holes and the
+    bilinear read of frame 1 as kernels."""
+    H, W = color.shape[-2:]
+    ok = (_f32cpu(color) and color.shape[0] == 3 and _f32cpu(color1)
+          and color1.shape == color.shape and _f32cpu(depth) and _f32cpu(depth1)
+          and depth.shape == (1, H, W) and depth1.shape == (1, H, W) and _f32cpu(mv)
+          and _f32cpu(mv1) and mv.shape == (2, H, W) and mv1.shape == (2, H, W)
+          and _boolcpu(valid, (1, H, W)))
+    if not ok:
+        return G.vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
+                                  depth_threshold_rel)
+    a = check_alpha(alpha, hi=ALPHA_MAX)
+    thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
+    from fgcli.kernels.gffe import vector_rule_kernel
+
+    took = _empty(1, H, W, dtype=torch.bool)
+    flow, dep, mvo = _empty(2, H, W), _empty(1, H, W), _empty(2, H, W)
+    vector_rule_kernel(_a(mv1), _a(depth1)[0], _u8(valid)[0], _a(depth)[0], _a(mv), F32(a),
+                       F32(1.0 - thr), _u8(took)[0], flow.numpy(), dep.numpy()[0], mvo.numpy())
+    out, _ = _sample_where(color1, flow, took, base=color)
+    return out, dep, mvo, took

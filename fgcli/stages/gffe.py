@@ -359,17 +359,17 @@ class GffeVectorRule(_HoleStage):
             "finds background: frame 1 behind the object that moved away, along the "
             "pixel's vector (current shading; fgen, the op mob-fgsr uses). Before the "
             "background layers, whose fragments may be frames old.")
+    uses_kernels = True
     inputs = ("color", "depth", "mv", "valid", "color1", "depth1", "mv1", "alpha")
     outputs = ("color", "depth", "mv", "valid")
     options = (Option("depth_threshold", "float", 1e-3, "relative depth margin of the "
                       "rule's background test (mob-fgsr's extrap_fill)", range=(0.0, 1.0)),)
 
     def run(self, ctx):
-        from fgcli.ops.gffe import vector_rule_fill
-
-        c, d, m, took = vector_rule_fill(ctx["color"], ctx["valid"], ctx["depth"], ctx["mv"],
-                                         ctx["color1"], ctx["depth1"], ctx["mv1"],
-                                         ctx["alpha"], self.depth_threshold)
+        c, d, m, took = op("vector_rule_fill", ctx)(ctx["color"], ctx["valid"], ctx["depth"],
+                                                    ctx["mv"], ctx["color1"], ctx["depth1"],
+                                                    ctx["mv1"], ctx["alpha"],
+                                                    self.depth_threshold)
         return {"color": c, "depth": d, "mv": m, "valid": ctx["valid"] | took}
 
 
@@ -456,8 +456,6 @@ class GffeHoleFill(Stage):
     def run(self, ctx):
         import torch
 
-        from fgcli.ops.gffe import push_pull_fill
-
         v, color, depth, mv0 = ctx["valid"], ctx["color"], ctx["depth"], ctx["mv"]
         border = ctx.get("window_border")
         cams = ctx.get("camera1") is not None and ctx.get("camera_x") is not None
@@ -467,7 +465,7 @@ class GffeHoleFill(Stage):
                                                        ~v)
             color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
             mv0, v = torch.where(bf, bm, mv0), v | bf
-        c, d = push_pull_fill(color, v, depth, self.far_bias)
+        c, d = op("push_pull_fill", ctx)(color, v, depth, self.far_bias)
         mv = torch.where(v, mv0, torch.zeros_like(mv0))
         if self.mode == "reproject" and cams:
             c, flow, took = op("reproject_fill", ctx)(c, v, d, ctx["color1"], ctx["depth1"],

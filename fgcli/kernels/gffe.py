@@ -1,0 +1,534 @@
+"""GFFE's per-pixel steps (fgcli.ops.gffe) beyond the camera geometry (fgcli.kernels.geom):
+the glue of the ops (their torch.where / gather chains) fused into a few passes, the
+nearest-depth-wins splat of the background layers, the far-biased push-pull pyramid. The
+same float32 operations in the same order as the torch ops (every product and sum rounded
+on its own; Python scalars rounded to float32 as torch rounds them), so the results are
+bit-identical. What torch computes with MKL / Sleef (log, sqrt) stays in torch
+(fgcli.kernels.ops passes the results in).
+
+Per-pixel bodies are selects, no branches; rows run in parallel (prange), the inner loop
+over x is a plain range in the kernel body (fgcli.kernels.warp's notes). Masks come in
+as uint8 views of the bool tensors: a select on an element of a bool array stopped LLVM
+from vectorising the row loop (no gathers), a uint8 compare does not."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
+                                   smv_b, sval_b)
+from fgcli.kernels._intrin import atomic_min_i64
+from fgcli.kernels.warp import _bil, _coords
+
+OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
+ZERO = np.float32(0.0)
+ONE = np.float32(1.0)
+HALF = np.float32(0.5)
+U0 = np.uint8(0)
+
+
+# ----------------------------------------------------------------------------- sampling
+
+@njit(**KERNEL)
+def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
+                        out, fout):
+    """out = where(sel, backward_warp(img, flow, 'bilinear'), base or 0) (3 channels) and
+    fout = where(sel, flow, fbase or 0)."""
+    h, w = sel.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for py in prange(h):
+        y = np.int64(py)
+        gyy = gyn[y]
+        for x in range(w):
+            s = sel[y, x] != U0
+            fx0 = flow[0, y, x]
+            fy0 = flow[1, y, x]
+            fx = sflow_b(fx0)
+            fy = sflow_b(fy0)
+            zero = (fx == ZERO) & (fy == ZERO)
+            y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh,
+                                                     wm1, hm1, w, h)
+            for k in range(3):
+                r = _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se)
+                r = sval_b(img[k, y, x]) if zero else r
+                b = base[k, y, x] if has_base else ZERO
+                out[k, y, x] = r if s else b
+            b0 = fbase[0, y, x] if has_fbase else ZERO
+            b1 = fbase[1, y, x] if has_fbase else ZERO
+            fout[0, y, x] = fx0 if s else b0
+            fout[1, y, x] = fy0 if s else b1
+
+
+# ----------------------------------------------------------------------------- warp
+
+@njit(**KERNEL)
+def offsets_kernel(px, py, ok, out):
+    """warp_positions' splat vectors: -stack([where(ok, px - xh, OFF), where(ok, py - yh,
+    OFF)])."""
+    h, w = px.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        yh = F32(y) + HALF
+        for x in range(w):
+            o = ok[y, x] != U0
+            dx = px[y, x] - (F32(x) + HALF)
+            dy = py[y, x] - yh
+            out[0, y, x] = -(dx if o else OFF)
+            out[1, y, x] = -(dy if o else OFF)
+
+
+# ----------------------------------------------------------------------------- dilation
+
+@njit(**KERNEL)
+def dilate_traj_kernel(traj, src, dyn, has_dyn, pd, out):
+    """dilate_trajectory after the nearest-depth dilation: src (2, H, W) the winner's pixel
+    centre (dilate_nearest_depth of the centre coordinates), pd (4, H, W) the winner's
+    depth unprojected on each pixel's ray; out (k, 4, H, W)."""
+    k = traj.shape[0]
+    h, w = src.shape[1:]
+    hm1 = F32(h - 1)
+    wm1 = F32(w - 1)
+    wf = F32(w)
+    for pr in prange(h):
+        y = np.int64(pr)
+        nidx = np.empty(w, dtype=np.int64)
+        both = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            fi = clamp_b(np.floor(src[1, y, x]), ZERO, hm1) * wf + \
+                clamp_b(np.floor(src[0, y, x]), ZERO, wm1)
+            n = np.int64(fi)
+            ny = n // w
+            nx = n - ny * w
+            nidx[x] = n
+            t3 = traj[0, 3, ny, nx]
+            b = (t3 > ZERO) & (traj[0, 3, y, x] > ZERO)
+            # (without ``dynamic``, dyn is a same-shape stand-in: reads stay in bounds)
+            dn = (dyn[ny, nx] != U0) | (not has_dyn)
+            dx = (dyn[y, x] != U0) & has_dyn
+            b = b & dn & (not dx)
+            both[x] = ONE if b else ZERO
+            take = b & (pd[3, y, x] > ZERO)
+            for c in range(4):
+                out[0, c, y, x] = pd[c, y, x] if take else traj[0, c, y, x]
+        for i in range(1, k):
+            for x in range(w):
+                n = nidx[x]
+                ny = n // w
+                nx = n - ny * w
+                ok = (both[x] != ZERO) & (traj[i, 3, ny, nx] == traj[0, 3, ny, nx])
+                for c in range(4):
+                    v = out[0, c, y, x] - (traj[0, c, ny, nx] - traj[i, c, ny, nx])
+                    out[i, c, y, x] = v if ok else traj[i, c, y, x]
+
+
+# ----------------------------------------------------------------------------- background
+
+@njit(**KERNEL)
+def splat_min_kernel(px, py, sc, dn, use, h, w, buf, src, dep):
+    """_splat_min of fragments (any grid) at target cells (floor(px / sc), floor(py / sc))
+    of an (h, w) grid: buf (h * w) int64 scratch; src (h, w) int64 winning flat source
+    index or -1, dep (h, w) its depth (+inf empty). Keys as the reference packs them:
+    float32 bits of nan_to_num(dn, nan=inf).clamp_min(0) << 32 | source index.
+
+    The scatter follows fgcli.kernels.splat.splat_kernel: where the fragment grid is the
+    target grid, source rows are cut into bands, even bands run in parallel, then odd
+    ones, and a fragment whose target row lies within half a band of its own band takes a
+    plain read-compare-write; any other (and every fragment of another grid) an atomic
+    minimum in a last pass. Unused fragments write nothing (the reference sends them to a
+    dropped extra cell). The minimum is unique: the result never depends on timing."""
+    hs, ws = dn.shape
+    n = h * w
+    hm1 = F32(h - 1)
+    wm1 = F32(w - 1)
+    wf = F32(w)
+    hf = F32(h)
+    for i in prange(n):
+        buf[i] = I64_MAX
+    same = (hs == h) & (ws == w)
+    bh = max(8, (hs + 31) // 32)  # band height
+    nband = (hs + bh - 1) // bh
+    half = bh // 2
+    dq = np.empty(hs * ws, dtype=np.int64)  # target, or -1: done / unused
+    for phase in range(2):
+        for bi in prange((nband - phase + 1) // 2):
+            band = 2 * np.int64(bi) + phase
+            ya = band * bh
+            yb = min(hs, ya + bh)
+            zlo = (ya - half) * w
+            zhi = (yb + half) * w
+            qs = np.empty(ws, dtype=np.int64)
+            ks = np.empty(ws, dtype=np.int64)
+            for y in range(ya, yb):
+                for x in range(ws):
+                    tx = np.floor(px[y, x] / sc)
+                    ty = np.floor(py[y, x] / sc)
+                    d = dn[y, x]
+                    d = INF if d != d else d
+                    d = ZERO if d < ZERO else d  # clamp_min(0) (-inf too)
+                    inside = (use[y, x] != U0) & (tx >= ZERO) & (tx < wf) & (ty >= ZERO) & \
+                        (ty < hf)
+                    q = np.int64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
+                    qs[x] = q if inside else np.int64(-1)
+                    ks[x] = (np.int64(np.float32(d).view(np.int32)) << 32) | (y * ws + x)
+                for x in range(ws):
+                    q = qs[x]
+                    local = same & (q >= zlo) & (q < zhi)
+                    if q >= 0 and local:
+                        if ks[x] < buf[q]:
+                            buf[q] = ks[x]
+                        q = np.int64(-1)
+                    dq[y * ws + x] = q
+    for pr in prange(hs):
+        y = np.int64(pr)
+        for x in range(ws):
+            q = dq[y * ws + x]
+            if q >= 0:
+                d = dn[y, x]
+                d = INF if d != d else d
+                d = ZERO if d < ZERO else d
+                atomic_min_i64(buf, q, (np.int64(np.float32(d).view(np.int32)) << 32) |
+                               (y * ws + x))
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            k = buf[y * w + x]
+            hit = k != I64_MAX
+            s = k & np.int64(0xFFFFFFFF)
+            d = np.int32(k >> 32).view(np.float32)
+            src[y, x] = s if hit else np.int64(-1)
+            dep[y, x] = d if hit else INF
+
+
+@njit(**KERNEL)
+def bg_resolve_kernel(s0, d0, s1, d1, sc2, scf, hole, col0, col1, bil0, bil1, out_c, out_d,
+                      out_m, filled, code):
+    """project_background after the two splats: the nearer layer's fragment per hole
+    (layer 1 on its own grid: pixel (y, x) reads cell (y // 2, x // 2) when sc2), its
+    colour (nearest), depth and vector toward frame 1; code marks the pixels whose colour
+    the bilinear pass replaces (1: layer 0's, 2: layer 1's; bil0 / bil1: that layer is
+    read bilinearly)."""
+    h, w = s0.shape
+    w2 = s1.shape[1]
+    inf_ = INF
+    for pr in prange(h):
+        y = np.int64(pr)
+        yy = (y >> 1) if sc2 else y
+        yh = F32(y) + HALF
+        for x in range(w):
+            xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
+            a = s0[y, x]
+            da = d0[y, x]
+            b = s1[yy, xx]
+            db = d1[yy, xx]
+            h0 = a >= 0
+            h1 = b >= 0
+            t1 = h1 & ((not h0) | (db < da))
+            t0 = h0 & (not t1)
+            ac = max(a, np.int64(0))
+            bc = max(b, np.int64(0))
+            ay = ac // w
+            ax = ac - ay * w
+            by = bc // w2
+            bx = bc - by * w2
+            f = (hole[y, x] != U0) & (t0 | t1)
+            for k in range(3):
+                c = col1[k, by, bx] if t1 else col0[k, ay, ax]
+                out_c[k, y, x] = c if f else ZERO
+            out_d[y, x] = (db if t1 else da) if f else inf_
+            sx = ((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)
+            sy = ((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)
+            mx = sx - (F32(x) + HALF)
+            my = sy - yh
+            out_m[0, y, x] = mx if f else ZERO
+            out_m[1, y, x] = my if f else ZERO
+            filled[y, x] = np.uint8(1) if f else U0
+            c0 = np.uint8(1) if (f & t0 & bil0) else U0
+            code[y, x] = np.uint8(2) if (f & t1 & bil1) else c0
+
+
+@njit(**INLINE)
+def _sample_layer_px(col, dep, valid, px, py, ss, qx, qy, tol, out, y, x):
+    """_sample_layer at one pixel (q = (qx, qy)) for the fragment ss (flat index into the
+    full-size layer grid) whose projected position is (px, py)[ss]; writes out[:, y, x]."""
+    H, W = dep.shape
+    sy_ = ss // W
+    sx_ = ss - sy_ * W
+    fxp = F32(sx_) + (qx - px[sy_, sx_])
+    fyp = F32(sy_) + (qy - py[sy_, sx_])
+    x0 = np.floor(fxp)
+    y0 = np.floor(fyp)
+    fx = fxp - x0
+    fy = fyp - y0
+    dref = dep[sy_, sx_]
+    lim = dref * tol
+    a0 = ZERO
+    a1 = ZERO
+    a2 = ZERO
+    ws = ZERO
+    Wf = F32(W)
+    Hf = F32(H)
+    for oy in range(2):
+        wy = (ONE - fy) if oy == 0 else fy
+        ty = y0 + F32(oy)
+        for ox in range(2):
+            wx = (ONE - fx) if ox == 0 else fx
+            tx = x0 + F32(ox)
+            inside = (tx >= ZERO) & (tx < Wf) & (ty >= ZERO) & (ty < Hf)
+            j = np.int64(clamp_b(ty, ZERO, Hf - ONE) * Wf + clamp_b(tx, ZERO, Wf - ONE))
+            jy = j // W
+            jx = j - jy * W
+            dj = dep[jy, jx]
+            ok = inside and valid[jy, jx] != U0 and abs(dj - dref) <= lim
+            wt = wx * wy if ok else ZERO
+            a0 = a0 + col[0, jy, jx] * wt
+            a1 = a1 + col[1, jy, jx] * wt
+            a2 = a2 + col[2, jy, jx] * wt
+            ws = ws + wt
+    if ws > HALF:
+        dv = max(ws, F32(1e-12))
+        out[0, y, x] = a0 / dv
+        out[1, y, x] = a1 / dv
+        out[2, y, x] = a2 / dv
+    else:
+        out[0, y, x] = col[0, sy_, sx_]
+        out[1, y, x] = col[1, sy_, sx_]
+        out[2, y, x] = col[2, sy_, sx_]
+
+
+@njit(**KERNEL)
+def bg_bilinear_kernel(code, s0, s1, l0c, l0d, l0v, px0, py0, l1c, l1d, l1v, px1, py1, tol,
+                       out_c):
+    """The bilinear reads of project_background (filter='bilinear'): the pixels ``code``
+    marks (few: the holes) read their layer at the exact sub-pixel place (_sample_layer)."""
+    h, w = code.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        qy = F32(y) + HALF
+        for x in range(w):
+            c = code[y, x]
+            if c == U0:
+                continue
+            qx = F32(x) + HALF
+            if c == np.uint8(1):
+                _sample_layer_px(l0c, l0d, l0v, px0, py0, max(s0[y, x], np.int64(0)), qx, qy,
+                                 tol, out_c, y, x)
+            else:
+                _sample_layer_px(l1c, l1d, l1v, px1, py1, max(s1[y, x], np.int64(0)), qx, qy,
+                                 tol, out_c, y, x)
+
+
+# ----------------------------------------------------------------------------- push-pull
+# fgcli.ops.gffe.push_pull_fill with depth and far_bias >= 0, level by level: colour planes
+# (3, h, w), depth plane, the weights w and wd as float32 0 / 1 planes. avg_pool2d (2x2,
+# ceil_mode, count_include_pad=False) as ATen's CPU kernel computes it: a float sum from 0
+# over the window's cells in row order, divided by their count, added to 0.
+
+BIG30 = np.float32(1e30)
+TINY30 = np.float32(1e-30)
+
+
+@njit(**KERNEL)
+def pp_prep_kernel(depth, valid, xd, wv, wdv):
+    """Level 0's depth plane where(isfinite & > 0, depth, 0), w = valid, wd = valid & that."""
+    h, w = depth.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            d = depth[y, x]
+            fin = (d > ZERO) & (d < INF)
+            v = valid[y, x] != U0
+            xd[y, x] = d if fin else ZERO
+            wv[y, x] = ONE if v else ZERO
+            wdv[y, x] = ONE if (v & fin) else ZERO
+
+
+@njit(**KERNEL)
+def pp_down_kernel(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd):
+    """One level down: far-biased weights (within fb of the 2x2 block's farthest depth),
+    validity-weighted 2x2 averages of colour (xc, sanitised as read) and depth."""
+    h, w = xd.shape
+    h2, w2 = nxd.shape
+    for pr in prange(h2):
+        oy = np.int64(pr)
+        ya = 2 * oy
+        r1 = ya + 1 < h
+        yb = ya + 1 if r1 else ya
+        for ox in range(w2):
+            xa = 2 * ox
+            c1 = xa + 1 < w
+            xb = xa + 1 if c1 else xa
+            cnt = F32(2 if r1 else 1) * F32(2 if c1 else 1)
+            mb = c1
+            mc = r1
+            md = r1 & c1
+            wa = wv[ya, xa]
+            wb = wv[ya, xb]
+            wc = wv[yb, xa]
+            wd_ = wv[yb, xb]
+            va = wdv[ya, xa]
+            vb = wdv[ya, xb]
+            vc = wdv[yb, xa]
+            vd = wdv[yb, xb]
+            da = xd[ya, xa]
+            db = xd[ya, xb]
+            dc = xd[yb, xa]
+            dd_ = xd[yb, xb]
+            ea = ((da if va > ZERO else BIG30) if wa > ZERO else ZERO)
+            eb = ((db if vb > ZERO else BIG30) if wb > ZERO else ZERO)
+            ec = ((dc if vc > ZERO else BIG30) if wc > ZERO else ZERO)
+            ed = ((dd_ if vd > ZERO else BIG30) if wd_ > ZERO else ZERO)
+            mx = ea
+            mx = eb if (mb & (eb > mx)) else mx
+            mx = ec if (mc & (ec > mx)) else mx
+            mx = ed if (md & (ed > mx)) else mx
+            thr = mx * fb
+            ba = wa * (ONE if ea >= thr else ZERO)
+            bb = wb * (ONE if eb >= thr else ZERO)
+            bc = wc * (ONE if ec >= thr else ZERO)
+            bd = wd_ * (ONE if ed >= thr else ZERO)
+            s = ZERO + ba
+            s = (s + bb) if mb else s
+            s = (s + bc) if mc else s
+            s = (s + bd) if md else s
+            sw = ZERO + s / cnt
+            den = max(sw, TINY30)
+            for k in range(3):
+                s = ZERO + sval_b(xc[k, ya, xa]) * ba
+                s = (s + sval_b(xc[k, ya, xb]) * bb) if mb else s
+                s = (s + sval_b(xc[k, yb, xa]) * bc) if mc else s
+                s = (s + sval_b(xc[k, yb, xb]) * bd) if md else s
+                sx = ZERO + s / cnt
+                nxc[k, oy, ox] = (sx / den) if sw > ZERO else ZERO
+            s = ZERO + va
+            s = (s + vb) if mb else s
+            s = (s + vc) if mc else s
+            s = (s + vd) if md else s
+            swd = ZERO + s / cnt
+            s = ZERO + da * va
+            s = (s + db * vb) if mb else s
+            s = (s + dc * vc) if mc else s
+            s = (s + dd_ * vd) if md else s
+            sd = ZERO + s / cnt
+            nxd[oy, ox] = (sd / max(swd, TINY30)) if swd > ZERO else ZERO
+            nw[oy, ox] = ONE if sw > ZERO else ZERO
+            nwd[oy, ox] = ONE if swd > ZERO else ZERO
+
+
+@njit(**KERNEL)
+def pp_up_kernel(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd):
+    """One level up: the level's own values where it has weight, else the filled coarser
+    level's (nearest upsampling)."""
+    h, w = xd.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        yy = y >> 1
+        for x in range(w):
+            xx = np.int64(x) >> 1
+            a = wv[y, x]
+            ad = wdv[y, x]
+            for k in range(3):
+                oxc[k, y, x] = sval_b(xc[k, y, x]) if a > ZERO else fxc[k, yy, xx]
+            oxd[y, x] = xd[y, x] if ad > ZERO else fxd[yy, xx]
+            ow[y, x] = max(a, fw[yy, xx])
+            owd[y, x] = max(ad, fwd[yy, xx])
+
+
+@njit(**KERNEL)
+def pp_final_kernel(color, depth, valid, xd, wdv, fxc, fxd, fwd, out_c, out_d):
+    """Level 0 up, and the outputs: valid pixels keep (sanitised) colour and raw depth."""
+    h, w = xd.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        yy = y >> 1
+        for x in range(w):
+            xx = np.int64(x) >> 1
+            v = valid[y, x] != U0
+            for k in range(3):
+                out_c[k, y, x] = sval_b(color[k, y, x]) if v else fxc[k, yy, xx]
+            ad = wdv[y, x]
+            nd = xd[y, x] if ad > ZERO else fxd[yy, xx]
+            fw_ = max(ad, fwd[yy, xx])
+            dd = nd if fw_ > ZERO else INF
+            out_d[y, x] = depth[y, x] if v else dd
+
+
+# ----------------------------------------------------------------------------- hole fills
+
+FMAX = np.float32(3.4028234663852886e38)
+
+
+@njit(**KERNEL)
+def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, flow):
+    """reproject_fill without a border, up to the sampling: (px, py, ok) the hole's proxy
+    point projected into frame 1 (clamped on screen when ``clamp``); took = _proxy_took
+    (keep = 1 - depth_tol), flow = its offset where took, else 0."""
+    h, w = depth.shape
+    hs, ws = depth1.shape
+    wf = F32(w)
+    hf = F32(h)
+    wsf = F32(ws)
+    hsf = F32(hs)
+    for pr in prange(h):
+        y = np.int64(pr)
+        yh = F32(y) + HALF
+        for x in range(w):
+            o = ok[y, x] != U0
+            sx = px[y, x]
+            sy = py[y, x]
+            cx = clamp_b(sx, HALF, wf - HALF)
+            cy = clamp_b(sy, HALF, hf - HALF)
+            sx = cx if (o & clamp) else sx
+            sy = cy if (o & clamp) else sy
+            ix = np.floor(sx)
+            iy = np.floor(sy)
+            inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
+            j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
+            jy = j // ws
+            jx = j - jy * ws
+            s = depth1[jy, jx]
+            s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
+            s = FMAX if s > FMAX else s
+            s = -FMAX if s < -FMAX else s
+            dq = depth[y, x]
+            t = (valid[y, x] == U0) & o & inside & (s >= dq * keep)
+            took[y, x] = np.uint8(1) if t else U0
+            flow[0, y, x] = (sx - (F32(x) + HALF)) if t else ZERO
+            flow[1, y, x] = (sy - yh) if t else ZERO
+
+
+@njit(**KERNEL)
+def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_out, mv_out):
+    """vector_rule_fill up to the sampling: extrap_hole_fill on the holes (frame 1 read
+    ``a * mv1(q)`` away, the vector where that is not nearer than q by more than 1 - keep),
+    took = holes whose vector is not zero; flow, depth and mv where took."""
+    h, w = depth1.shape
+    lo = F32(-0.5)
+    hx = F32(w - 0.5)
+    hy = F32(h - 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for pr in prange(h):
+        y = np.int64(pr)
+        yf = F32(y)
+        for x in range(w):
+            mx = smv_b(mv1[0, y, x]) * a
+            my = smv_b(mv1[1, y, x]) * a
+            sx = F32(x) + mx
+            sy = yf + my
+            inside = (sx >= lo) & (sx < hx) & (sy >= lo) & (sy < hy)
+            ix = np.int64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
+            iy = np.int64(clamp_b(np.floor(sy + HALF), ZERO, hm1))
+            ds = sdepth_b(depth1[iy, ix])
+            do = sdepth_b(depth1[y, x])
+            bg = inside & (not (ds < do * keep))
+            hole = valid[y, x] == U0
+            t = hole & bg & ((mx != ZERO) | (my != ZERO))
+            took[y, x] = np.uint8(1) if t else U0
+            flow[0, y, x] = mx if t else ZERO
+            flow[1, y, x] = my if t else ZERO
+            dep_out[y, x] = ds if t else depth[y, x]
+            mv_out[0, y, x] = mx if t else mv[0, y, x]
+            mv_out[1, y, x] = my if t else mv[1, y, x]
