@@ -38,24 +38,24 @@ def _taps(px, py, h, w, thr):
 
 
 @njit(cache=True, nogil=True)
-def field_scatter_kernel(pos, kx, ky, dist, d, h, w, thr, steps, buf, sec):
-    """vector_field's scatter. pos (2, N) float32 footprint positions; kx, ky (N,) int64
-    primary entries; dist (N,) float32 secondary walk lengths; d (2, N) float32 unit
-    steps; steps: secondary steps (0: none); buf, sec (2, (h+2)*(w+2)) int64 zeroed ->
-    buf = max(primary, secondary) entries (the caller crops the ring)."""
+def field_scatter_kernel(pos, key, dist, d, h, w, thr, steps, buf, sec):
+    """vector_field's scatter, one component. pos (2, N) float32 footprint positions; key
+    (N,) int64 primary entries of the component; dist (N,) float32 secondary walk lengths;
+    d (2, N) float32 unit steps; steps: secondary steps (0: none); buf, sec ((h+2)*(w+2),)
+    int64 zeroed -> buf = max(primary, secondary) entries (the caller crops the ring).
+
+    The two components are independent (each source writes both at the same taps with the
+    same priority bits, so a texel's primary flag is the same in both: the secondary walk
+    of either counts the same hits), so the caller runs them on two threads."""
     n = pos.shape[1]
     w2 = w + 2
     for i in range(n):
         xa, xb, ya, yb, t00, t10, t01, t11 = _taps(pos[0, i], pos[1, i], h, w, thr)
-        a = kx[i]
-        b = ky[i]
+        a = key[i]
         for q, t in ((ya * w2 + xa, t00), (ya * w2 + xb, t10), (yb * w2 + xa, t01),
                      (yb * w2 + xb, t11)):
-            if t:
-                if a > buf[0, q]:
-                    buf[0, q] = a
-                if b > buf[1, q]:
-                    buf[1, q] = b
+            if t and a > buf[q]:
+                buf[q] = a
     if steps < 1:
         return
     # secondary entries walk back from the footprint, counting primary texels hit
@@ -63,8 +63,7 @@ def field_scatter_kernel(pos, kx, ky, dist, d, h, w, thr, steps, buf, sec):
         di = dist[i]
         if not di >= F32(1.0):
             continue
-        a = kx[i] - _PRIMARY
-        b = ky[i] - _PRIMARY
+        a = key[i] - _PRIMARY
         hits = 0
         for k in range(1, steps + 1):
             if not (di >= F32(k)) or hits > 3:
@@ -77,18 +76,15 @@ def field_scatter_kernel(pos, kx, ky, dist, d, h, w, thr, steps, buf, sec):
             if xi < 1 or xi > w or yi < 1 or yi > h:
                 continue
             q = yi * w2 + xi
-            if buf[0, q] >= _PRIMARY:
+            if buf[q] >= _PRIMARY:
                 hits += 1
             if hits > 3:
                 continue
-            if a > sec[0, q]:
-                sec[0, q] = a
-            if b > sec[1, q]:
-                sec[1, q] = b
-    for c in range(2):
-        for q in range(buf.shape[1]):
-            if sec[c, q] > buf[c, q]:
-                buf[c, q] = sec[c, q]
+            if a > sec[q]:
+                sec[q] = a
+    for q in range(buf.shape[0]):
+        if sec[q] > buf[q]:
+            buf[q] = sec[q]
 
 
 @njit(cache=True, nogil=True)
