@@ -384,3 +384,25 @@ def test_fused_gffe_ops_match_the_reference(h, w):
                                            f["mh"], a)))
     for name, args in cases:
         close_tree(f"{name} {h}x{w}", getattr(K, name)(*args), getattr(G, name)(*args))
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+def test_background_fill_matches_the_reference(h, w):
+    """The bg_project stage's op (project_background + entering_surface + the selects)."""
+    f = _hard_frames(h, w, h * 100 + w + 7)
+    traj, dyn = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"], k=3)
+    wp = G.warp_positions(f["c1"], G.estimate_positions(traj, 0.5), f["cam_x"])
+    frames = [(wp["color"], wp["depth"], wp["mv"], wp["valid"]),
+              (f["ch"], f["dh"], f["mh"], ~f["holes"])]
+    for sc in (1, 2):
+        prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"], layer1_scale=sc)
+        layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"],
+                                      layer1_scale=sc)
+        for filt in ("nearest", "bilinear"):
+            for ent, em, a in ((False, False, 0.5), (True, False, 3.0), (True, True, 0.5),
+                               (True, True, 3.0)):
+                for i, fr in enumerate(frames):
+                    args = fr + (layers, f["cam1"], f["cam_x"], filt, f["ch"], f["dh"],
+                                 f["mh"], a, ent, em)
+                    same_tree(f"background_fill {h}x{w} {sc} {filt} {ent} {em} {a} {i}",
+                              K.background_fill(*args), G.background_fill(*args))

@@ -39,6 +39,7 @@ KERNEL_OPS = {
     "warp_positions": "fgcli.ops.gffe",
     "collect_background": "fgcli.ops.gffe",
     "project_background": "fgcli.ops.gffe",
+    "background_fill": "fgcli.ops.gffe",
     "project_border": "fgcli.ops.gffe",
     "reproject_fill": "fgcli.ops.gffe",
     "push_pull_fill": "fgcli.ops.gffe",

@@ -25,6 +25,7 @@ ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
 HALF = np.float32(0.5)
 U0 = np.uint8(0)
+FMAX = np.float32(3.4028234663852886e38)
 
 
 # ----------------------------------------------------------------------------- sampling
@@ -249,6 +250,95 @@ def bg_resolve_kernel(s0, d0, s1, d1, sc2, scf, hole, col0, col1, bil0, bil1, ou
             code[y, x] = np.uint8(2) if (f & t1 & bil1) else c0
 
 
+KEEP3 = np.float32(1.0 - 1e-3)  # entering_surface's ``d1 * (1.0 - 1e-3)``
+
+
+@njit(**INLINE)
+def _nan_inf_b(v):
+    """torch.nan_to_num(v, nan=inf): NaN -> +inf, +-inf -> +-float32 max."""
+    r = FMAX if v == INF else v
+    r = -FMAX if v == -INF else r
+    return INF if v != v else r
+
+
+@njit(**KERNEL)
+def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, mv,
+                   valid, color1, depth1, mv1, a, entering, behind, out_c, out_d, out_m,
+                   out_v, code):
+    """background_fill after the two splats (bg_resolve_kernel's choice between the
+    layers on the holes ~valid), entering_surface's test (with ``entering``; its ``behind``
+    case with ``behind``: frame 1's depth read at the pixel containing q + a * mv1(q)) and
+    the stage's selects, in one pass; code marks the filled pixels (not taken by the
+    entering surface) whose colour bg_bilinear_kernel then replaces in out_c."""
+    h, w = s0.shape
+    w2 = s1.shape[1]
+    wf = F32(w)
+    hf = F32(h)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for pr in prange(h):
+        y = np.int64(pr)
+        yy = (y >> 1) if sc2 else y
+        yh = F32(y) + HALF
+        tk = np.empty(w, dtype=np.float32)
+        # entering_surface's test (its own gather loop), 1 where the surface goes off-screen
+        # (or, behind, comes from behind a nearer one) and is nearer than ``dlim`` allows
+        for x in range(w):
+            xh = F32(x) + HALF
+            m0 = smv_b(mv1[0, y, x])
+            m1 = smv_b(mv1[1, y, x])
+            sx = xh + a * m0
+            sy = yh + a * m1
+            off = (sx < ZERO) | (sx >= wf) | (sy < ZERO) | (sy >= hf)
+            dq = _nan_inf_b(depth1[y, x])
+            ix = np.floor(sx)
+            iy = np.floor(sy)
+            inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
+            j = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+            jy = j // w
+            jx = j - jy * w
+            ds = _nan_inf_b(depth1[jy, jx])
+            off = off | (behind & inside & (ds < dq * KEEP3))
+            tk[x] = ONE if (entering & off & (dq > ZERO)) else ZERO
+        for x in range(w):
+            xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
+            xh = F32(x) + HALF
+            sa = s0[y, x]
+            da = d0[y, x]
+            sb = s1[yy, xx]
+            db = d1[yy, xx]
+            h0 = sa >= 0
+            h1 = sb >= 0
+            t1 = h1 & ((not h0) | (db < da))
+            t0 = h0 & (not t1)
+            ac = max(sa, np.int64(0))
+            bc = max(sb, np.int64(0))
+            ay = ac // w
+            ax = ac - ay * w
+            by = bc // w2
+            bx = bc - by * w2
+            f = (valid[y, x] == U0) & (t0 | t1)
+            dsel = db if t1 else da
+            dq = _nan_inf_b(depth1[y, x])
+            take = f & (tk[x] != ZERO) & (dq < dsel)
+            for k in range(3):
+                c = col1[k, by, bx] if t1 else col0[k, ay, ax]
+                c = c if f else color[k, y, x]
+                out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
+            dd = dsel if f else depth[y, x]
+            out_d[y, x] = dq if take else dd
+            mx = (((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)) - xh
+            my = (((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)) - yh
+            mx = mx if f else mv[0, y, x]
+            my = my if f else mv[1, y, x]
+            out_m[0, y, x] = ZERO if take else mx
+            out_m[1, y, x] = ZERO if take else my
+            out_v[y, x] = np.uint8(1) if (f | (valid[y, x] != U0)) else U0
+            rd = f & (not take)
+            c0 = np.uint8(1) if (rd & t0 & bil0) else U0
+            code[y, x] = np.uint8(2) if (rd & t1 & bil1) else c0
+
+
 @njit(**INLINE)
 def _sample_layer_px(col, dep, valid, px, py, ss, qx, qy, tol, out, y, x):
     """_sample_layer at one pixel (q = (qx, qy)) for the fragment ss (flat index into the
@@ -456,8 +546,6 @@ def pp_final_kernel(color, depth, valid, xd, wdv, fxc, fxd, fwd, out_c, out_d):
 
 
 # ----------------------------------------------------------------------------- hole fills
-
-FMAX = np.float32(3.4028234663852886e38)
 
 
 @njit(**KERNEL)

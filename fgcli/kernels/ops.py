@@ -455,7 +455,8 @@ def _cache_cold() -> bool:
     kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
                 gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                 gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
-                gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel)
+                gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
+                gffe.bg_fill_kernel)
     try:
         import os
 
@@ -769,6 +770,7 @@ def _warm_gffe(d) -> None:
     warp_positions(c, p, cam)
     layers = G.collect_background(c, d, v, cam, layer1_scale=1)
     project_background(layers, cam, cam, ~v, "bilinear")
+    background_fill(c, d, mv, v, layers, cam, cam, "bilinear", c, d, mv, 0.5, True, True)
     push_pull_fill(c, v, d)
     reproject_fill(c, v, d, c, d, cam, cam)
     vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
@@ -927,6 +929,59 @@ def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None
                            _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
                            _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
     return c, d, m, filled
+
+
+def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="nearest",
+                    color1=None, depth1=None, mv1=None, alpha=0.5, entering=False,
+                    emerging=False, geom=None):
+    """fgcli.ops.gffe.background_fill: the layers' geometry (geom kernels) and both
+    splats as project_background, then the choice between the layers, the entering
+    surface and the stage's selects in one kernel (bg_fill_kernel), the bilinear reads
+    last."""
+    H, W = valid.shape[-2:]
+    ok = (isinstance(layers, (list, tuple)) and len(layers) == 2
+          and _boolcpu(valid, (1, H, W)) and filter in ("nearest", "bilinear")
+          and _f32cpu(color) and color.shape == (3, H, W) and _f32cpu(depth)
+          and depth.shape == (1, H, W) and _f32cpu(mv) and mv.shape == (2, H, W)
+          and _layer_ok(layers[0], (H, W)))
+    ent = bool(entering) and mv1 is not None
+    if ok and ent:
+        ok = (_f32cpu(color1) and color1.shape == (3, H, W) and _f32cpu(depth1)
+              and depth1.shape == (1, H, W) and _f32cpu(mv1) and mv1.shape == (2, H, W))
+    if ok:
+        sc = G._layer_scale(layers[1], H, W)
+        h2, w2 = (H, W) if sc == 1.0 else G._half(H, W)
+        ok = _layer_ok(layers[1], (h2, w2))
+    if not ok:
+        return G.background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter,
+                                 color1, depth1, mv1, alpha, entering, emerging, geom=GEOM)
+    from fgcli.kernels.gffe import bg_bilinear_kernel, bg_fill_kernel
+
+    l0, l1 = layers
+    px, py, dn, fok = G._layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0, GEOM)
+    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
+    px1, py1, dn1, fok1 = G._layer_fragments(l1, cam_bg, cam_x, (H, W), sc, GEOM)
+    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    bil0 = filter == "bilinear"
+    bil1 = bil0 and sc == 1.0
+    c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
+    v = _empty(1, H, W, dtype=torch.bool)
+    code = np.empty((H, W), dtype=np.uint8)
+    ca, da, ma = _a(color), _a(depth), _a(mv)
+    # without the entering surface, same-shape stand-ins (the kernel's selects read them)
+    c1, e1, m1 = (_a(color1), _a(depth1), _a(mv1)) if ent else (ca, da, ma)
+    a = F32(float(alpha)) if ent else F32(0.0)
+    bg_fill_kernel(s0.numpy(), d0.numpy(), s1.numpy(), d1.numpy(), sc == 2.0, F32(sc),
+                   _a(l0["color"]), _a(l1["color"]), bil0, bil1, ca, da[0], ma,
+                   _u8(valid)[0], c1, e1[0], m1, a, ent, bool(emerging), c.numpy(),
+                   d.numpy()[0], m.numpy(), _u8(v)[0], code)
+    if bil0:
+        l1v = _u8(l1["valid"])[0]
+        bg_bilinear_kernel(code, s0.numpy(), s1.numpy(), _a(l0["color"]), _a(l0["depth"])[0],
+                           _u8(l0["valid"])[0], px.numpy(), py.numpy(), _a(l1["color"]),
+                           _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
+                           _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
+    return c, d, m, v
 
 
 def push_pull_fill(color, valid, depth=None, far_bias=0.1):

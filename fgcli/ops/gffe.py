@@ -799,6 +799,28 @@ def entering_surface(filled: torch.Tensor, depth: torch.Tensor, color1: torch.Te
     return sanitize_values(color1), d1, take
 
 
+def background_fill(color: torch.Tensor, depth: torch.Tensor, mv: torch.Tensor,
+                    valid: torch.Tensor, layers: list, cam_bg, cam_x, filter: str = "nearest",
+                    color1: torch.Tensor | None = None, depth1: torch.Tensor | None = None,
+                    mv1: torch.Tensor | None = None, alpha: float = 0.5,
+                    entering: bool = False, emerging: bool = False,
+                    geom: Geometry | None = None):
+    """The background projection stage (gffe_bg_project) as one op: the layers seen by
+    cam_x fill the holes (~valid) of the warped frame (project_background); with
+    ``entering`` (and frame 1's color1, depth1, mv1), entering_surface's nearer surfaces
+    (``emerging``: its ``behind`` case too) replace the layers' fragments there.
+
+    Returns (color (3, H, W), depth (1, H, W), mv (2, H, W), valid (1, H, W) bool): the
+    inputs with the filled holes replaced, valid | filled."""
+    c, d, m, filled = project_background(layers, cam_bg, cam_x, ~valid, filter, geom=geom)
+    if entering and mv1 is not None:
+        c1, d1, take = entering_surface(filled, d, color1, depth1, mv1, alpha, emerging)
+        c, d = torch.where(take, c1, c), torch.where(take, d1, d)
+        m = torch.where(take, torch.zeros_like(m), m)
+    return (torch.where(filled, c, color), torch.where(filled, d, depth),
+            torch.where(filled, m, mv), valid | filled)
+
+
 def project_border(border: dict, cam1, cam_x, holes: torch.Tensor, geom: Geometry | None = None):
     """The overscan border of frame 1 (Frame.overscan: the rendered pixels outside the
     display window) seen by the extrapolated camera: GFFE's use of a larger rendering

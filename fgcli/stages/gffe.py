@@ -398,23 +398,14 @@ class GffeBackgroundProject(_HoleStage):
         return super().needed(ctx, facts)
 
     def run(self, ctx):
-        import torch
-
         if ctx.get("bg") is None:
             return self.skip(ctx)
-        holes = ~ctx["valid"]
-        c, d, m, filled = op("project_background", ctx)(ctx["bg"], ctx["camera1"],
-                                                        ctx["camera_x"], holes, self.filter)
-        if self.entering and ctx.get("mv1") is not None:
-            from fgcli.ops.gffe import entering_surface
-
-            c1, d1, take = entering_surface(filled, d, ctx["color1"], ctx["depth1"],
-                                            ctx["mv1"], ctx["alpha"], self.emerging)
-            c, d = torch.where(take, c1, c), torch.where(take, d1, d)
-            m = torch.where(take, torch.zeros_like(m), m)
-        return {"color": torch.where(filled, c, ctx["color"]),
-                "depth": torch.where(filled, d, ctx["depth"]),
-                "mv": torch.where(filled, m, ctx["mv"]), "valid": ctx["valid"] | filled}
+        ent = self.entering and ctx.get("mv1") is not None
+        c, d, m, v = op("background_fill", ctx)(
+            ctx["color"], ctx["depth"], ctx["mv"], ctx["valid"], ctx["bg"], ctx["camera1"],
+            ctx["camera_x"], self.filter, ctx.get("color1"), ctx.get("depth1"),
+            ctx.get("mv1"), ctx["alpha"], ent, self.emerging)
+        return {"color": c, "depth": d, "mv": m, "valid": v}
 
 
 @register
