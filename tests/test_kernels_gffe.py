@@ -406,3 +406,22 @@ def test_background_fill_matches_the_reference(h, w):
                                  f["mh"], a, ent, em)
                     same_tree(f"background_fill {h}x{w} {sc} {filt} {ent} {em} {a} {i}",
                               K.background_fill(*args), G.background_fill(*args))
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+def test_track_history_matches_the_reference(h, w):
+    """track_history's kernels (static test, match search, trajectory) with depth0 and / or
+    a previous trajectory, every lookup, k, and the fallback (tol 0: every match misses)."""
+    f = _hard_frames(h, w, h * 100 + w + 11)
+    prev3, _ = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"], k=3)
+    prev2, _ = G.track_history(f["d0"], f["mv1"], f["cam0"], f["cam1"], f["d1"], k=2)
+    for d1, mv in ((f["d1"], f["mv1"]), (f["dh"], f["mh"]), (f["dh"], f["mv1"] * 0.05)):
+        for d0, prev in ((f["d0"], None), (f["dh"].flip(-1).contiguous(), prev3),
+                         (None, prev3), (f["d0"], prev2), (None, prev2)):
+            for k in (2, 3, 4):
+                for lookup, thr, tol in (("match", 0.5, 0.1), ("match", 0.0, 0.0),
+                                         ("nearest", 3.0, 0.1)):
+                    args = (d1, mv, f["cam1"], f["cam0"], d0, prev, k, thr, "mv", lookup, tol)
+                    same_tree(f"track_history {h}x{w} k{k} {lookup} {thr} {d0 is None} "
+                              f"{None if prev is None else prev.shape[0]}",
+                              K.track_history(*args), G.track_history(*args))

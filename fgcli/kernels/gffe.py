@@ -620,3 +620,136 @@ def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_o
             dep_out[y, x] = ds if t else depth[y, x]
             mv_out[0, y, x] = mx if t else mv[0, y, x]
             mv_out[1, y, x] = my if t else mv[1, y, x]
+
+
+# ----------------------------------------------------------------------------- history
+# fgcli.ops.gffe.track_history with a camera history, after unproject / project: the
+# static test and the lookup at x' (hist_test_kernel), the match search over the pixels
+# it selects (hist_match_kernel; the logarithms come from torch.log, as the reference
+# computes them) and the trajectory (hist_traj_kernel).
+
+@njit(**KERNEL)
+def hist_test_kernel(p3, xh, yh, ok, mv1, thr2, depth0, xp, yp, use, idx, d0g):
+    """x' = x + mv1 (sanitised), the static test (dynamic: ok, |x^ - x'|^2 > thr2, a
+    surface), the pixel containing x' (idx; use: dynamic and x' on screen) and depth0
+    read there (d0g)."""
+    h, w = ok.shape
+    wf = F32(w)
+    hf = F32(h)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for pr in prange(h):
+        y = np.int64(pr)
+        yc = F32(y) + HALF
+        for x in range(w):
+            a = (F32(x) + HALF) + smv_b(mv1[0, y, x])
+            b = yc + smv_b(mv1[1, y, x])
+            xp[y, x] = a
+            yp[y, x] = b
+            ex = xh[y, x] - a
+            ey = yh[y, x] - b
+            dist2 = ex * ex + ey * ey
+            dyn = (ok[y, x] != U0) & (dist2 > thr2) & (p3[y, x] > ZERO)
+            ix = np.floor(a)
+            iy = np.floor(b)
+            inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
+            n = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+            idx[y, x] = n
+            use[y, x] = np.uint8(1) if (dyn & inside) else U0
+            ny = n // w
+            nx = n - ny * w
+            d0g[y, x] = depth0[ny, nx]
+
+
+@njit(**KERNEL)
+def hist_match_kernel(sel, ld0, ld1, xp, yp, depth0, eps, lim, idx, d0g, fb):
+    """_match_idx on the selected pixels sel (flat, ascending): of the 3x3 pixels around
+    x', the first whose log depth0 (ld0, flat) is nearer to ld1 (per selected pixel) than
+    the best so far by more than eps (taps in the reference's order); idx and d0g updated,
+    fb = no tap within lim."""
+    h, w = xp.shape
+    n = sel.shape[0]
+    for i in prange(n):
+        s = sel[i]
+        y = s // w
+        x = s - y * w
+        ix = np.int64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
+        iy = np.int64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
+        l1 = ld1[i]
+        best = INF
+        bj = idx[y, x]
+        for t in range(9):
+            r = t // 3
+            c = t - 3 * r
+            oy = r - 1 if r == 2 else -r  # 0, -1, 1
+            ox = c - 1 if c == 2 else -c
+            jy = min(max(iy + oy, 0), h - 1)
+            jx = min(max(ix + ox, 0), w - 1)
+            j = jy * w + jx
+            err = abs(ld0[j] - l1)
+            if err < best - eps:
+                best = err
+                bj = j
+        idx[y, x] = bj
+        by = bj // w
+        d0g[y, x] = depth0[by, bj - by * w]
+        fb[y, x] = np.uint8(1) if best > lim else U0
+
+
+@njit(**KERNEL)
+def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
+    """The trajectory (k, 4, H, W): P_0 = p; P_1 = P'_0 (p1 at the pixel, or prev[0] read
+    at idx when from_prev), P_i (i >= 2) = prev[i - 1] at idx where prev has it (i - 1 <
+    nprev), else P'_0; pf (the fallback's point) where fb; each where the pixel is used
+    (use, P'_0 a surface as p) and the sample is of p's kind, else p. dyn = the used
+    pixels. (Without a fallback, fb is zero; unused inputs are same-shape stand-ins.)
+    One row loop per plane group and source (a single kind of read in each)."""
+    k = out.shape[0]
+    h, w = use.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        ub = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            for c in range(4):
+                out[0, c, y, x] = p[c, y, x]
+        if from_prev:
+            for x in range(w):
+                n = idx[y, x]
+                ny = n // w
+                nx = n - ny * w
+                f = fb[y, x] != U0
+                p3 = p[3, y, x]
+                q3 = pf[3, y, x] if f else prev[0, 3, ny, nx]
+                u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
+                ub[x] = ONE if u else ZERO
+                for c in range(4):
+                    q = pf[c, y, x] if f else prev[0, c, ny, nx]
+                    out[1, c, y, x] = q if u else p[c, y, x]
+        else:
+            for x in range(w):
+                f = fb[y, x] != U0
+                p3 = p[3, y, x]
+                q3 = pf[3, y, x] if f else p1[3, y, x]
+                u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
+                ub[x] = ONE if u else ZERO
+                for c in range(4):
+                    q = pf[c, y, x] if f else p1[c, y, x]
+                    out[1, c, y, x] = q if u else p[c, y, x]
+        for x in range(w):
+            dyn[y, x] = np.uint8(1) if ub[x] != ZERO else U0
+        for i in range(2, k):
+            if i - 1 < nprev:
+                for x in range(w):
+                    n = idx[y, x]
+                    ny = n // w
+                    nx = n - ny * w
+                    f = fb[y, x] != U0
+                    q3 = pf[3, y, x] if f else prev[i - 1, 3, ny, nx]
+                    t = (ub[x] != ZERO) & (q3 == p[3, y, x])
+                    for c in range(4):
+                        q = pf[c, y, x] if f else prev[i - 1, c, ny, nx]
+                        out[i, c, y, x] = q if t else p[c, y, x]
+            else:  # P'_0 again (its kind is p's wherever the pixel is used)
+                for x in range(w):
+                    for c in range(4):
+                        out[i, c, y, x] = out[1, c, y, x]

@@ -456,7 +456,8 @@ def _cache_cold() -> bool:
                 gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                 gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                 gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
-                gffe.bg_fill_kernel)
+                gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
+                gffe.hist_traj_kernel)
     try:
         import os
 
@@ -767,6 +768,9 @@ def _warm_gffe(d) -> None:
     mv = torch.zeros(2, h, w)
     v = d < 1.5
     dilate_trajectory(torch.stack([p, p]), d, cam, v)
+    mv1 = torch.full((2, h, w), 3.0)
+    traj, _ = track_history(d, mv1, cam, cam, d, None, 3, 0.5)
+    track_history(d, mv1, cam, cam, None, traj, 3, 0.5)
     warp_positions(c, p, cam)
     layers = G.collect_background(c, d, v, cam, layer1_scale=1)
     project_background(layers, cam, cam, ~v, "bilinear")
@@ -792,7 +796,59 @@ def _with_geom(name: str):
     return op
 
 
-track_history = _with_geom("track_history")
+def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, threshold=0.5,
+                  first_frame="mv", lookup="match", match_tol=0.1, geom=None):
+    """fgcli.ops.gffe.track_history with a camera history: unproject / project (geom
+    kernels), then the static test, the match search and the trajectory as kernels
+    (fgcli.kernels.gffe.hist_*); the logarithms of the search by torch.log on the tensors
+    the reference takes them of. Without a history (first frame): the reference (GEOM)."""
+    h, w = depth1.shape[-2:] if isinstance(depth1, torch.Tensor) else (0, 0)
+    ok = (cam0 is not None and (depth0 is not None or prev is not None)
+          and _f32cpu(depth1) and depth1.shape[0] == 1 and _f32cpu(mv1)
+          and tuple(mv1.shape) == (2, h, w) and isinstance(k, int) and k >= 2
+          and lookup in ("match", "nearest")
+          and (depth0 is None or (_f32cpu(depth0) and depth0.shape == depth1.shape))
+          and (prev is None or (_f32cpu(prev, 4) and prev.shape[0] >= 1
+                                and tuple(prev.shape[1:]) == (4, h, w))))
+    if not ok:
+        return G.track_history(depth1, mv1, cam1, cam0, depth0, prev, k, threshold,
+                               first_frame, lookup, match_tol, geom=GEOM)
+    from fgcli.kernels.gffe import hist_match_kernel, hist_test_kernel, hist_traj_kernel
+
+    p = unproject(depth1, cam1)
+    xh, yh, _, pok = project(p, cam0, (h, w))
+    xp, yp = _empty(h, w), _empty(h, w)
+    use = np.empty((h, w), dtype=np.uint8)
+    idx = np.empty((h, w), dtype=np.int64)
+    d0g = _empty(1, h, w)
+    pa = p.numpy()
+    d0a = _a(depth0)[0] if depth0 is not None else pa[3]  # (stand-in: read, unused)
+    hist_test_kernel(pa[3], xh.numpy(), yh.numpy(), _u8(pok), _a(mv1),
+                     F32(threshold * threshold), d0a, xp.numpy(), yp.numpy(), use, idx,
+                     d0g.numpy()[0])
+    fb = np.zeros((h, w), dtype=np.uint8)
+    has_fb = False
+    if lookup == "match" and depth0 is not None:
+        sel = torch.from_numpy(use.view(np.bool_)).reshape(-1).nonzero().squeeze(1)
+        if sel.numel():
+            ld0 = torch.log(torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30)
+                            .clamp_min(1e-30)).view(-1)
+            ld1 = torch.log(torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30).reshape(-1)[sel]
+                            .clamp_min(1e-30))
+            hist_match_kernel(sel.numpy(), _a(ld0), _a(ld1), xp.numpy(), yp.numpy(), d0a,
+                              F32(1e-7), F32(np.log1p(match_tol)), idx, d0g.numpy()[0], fb)
+            has_fb = bool(fb.any())
+    from_prev = depth0 is None
+    p1 = p if from_prev else unproject(d0g, cam0, xp, yp, (h, w))
+    pf = unproject(depth1, cam0, xp, yp, (h, w)) if has_fb else p
+    pv = _a(prev) if prev is not None else pa[None]
+    traj = _empty(k, 4, h, w)
+    dyn = _empty(1, h, w, dtype=torch.bool)
+    hist_traj_kernel(pa, use, idx, fb, p1.numpy(), from_prev, pf.numpy(), pv,
+                     prev.shape[0] if prev is not None else 0, traj.numpy(), _u8(dyn)[0])
+    return traj, dyn
+
+
 collect_background = _with_geom("collect_background")
 project_border = _with_geom("project_border")
 
