@@ -425,3 +425,19 @@ def test_track_history_matches_the_reference(h, w):
                     same_tree(f"track_history {h}x{w} k{k} {lookup} {thr} {d0 is None} "
                               f"{None if prev is None else prev.shape[0]}",
                               K.track_history(*args), G.track_history(*args))
+
+
+def test_median_depth_matches_the_reference():
+    """The window's median (an exact selection on the float32 bits) vs torch.nanmedian:
+    no finite positive value (NaN), ties, even and odd counts, extreme values."""
+    rng = np.random.default_rng(0)
+    cases = [torch.tensor([[[NAN]]]), torch.full((1, 3, 4), INF), torch.zeros(1, 2, 2),
+             torch.tensor([[[2.0, 1.0]]]), torch.tensor([[[1e-45, 3e38, 5.0, 5.0]]])]
+    g = torch.Generator().manual_seed(0)
+    for h, w in [(1, 1), (1, 9), (7, 1), (9, 14), (33, 51)]:
+        for s in (50.0, 1e-3, 1e30):
+            cases.append(hard_depth(h, w, rng, s))
+        cases.append((torch.rand(1, h, w, generator=g) * 4).round())
+    for i, c in enumerate(cases):
+        a, b = K.median_depth(c), G.median_depth(c)
+        assert (math.isnan(a) and math.isnan(b)) or a == b, (i, a, b)

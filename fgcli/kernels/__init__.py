@@ -44,6 +44,7 @@ KERNEL_OPS = {
     "reproject_fill": "fgcli.ops.gffe",
     "push_pull_fill": "fgcli.ops.gffe",
     "vector_rule_fill": "fgcli.ops.gffe",
+    "median_depth": "fgcli.ops.gffe",
     "disocclusion_masks": "fgcli.ops.fsr3",
     "interpolate_fsr3": "fgcli.ops.fsr3",
     "fill_vector_field": "fgcli.ops.fsr3",

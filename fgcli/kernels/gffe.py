@@ -753,3 +753,42 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
                 for x in range(w):
                     for c in range(4):
                         out[i, c, y, x] = out[1, c, y, x]
+
+
+# ----------------------------------------------------------------------------- window
+# median_depth: an exact selection by the float32 bits (finite positive floats order as
+# their bit patterns): a histogram of the top 16 bits, then one of the low 16 bits within
+# the bucket that holds the rank.
+
+@njit(**KERNEL)
+def bits_hist_kernel(d, hist):
+    """hist (nch, 32768) int64: per chunk of d (flat float32), the finite positive values
+    counted by their top 16 bits."""
+    n = d.shape[0]
+    nch = hist.shape[0]
+    step = (n + nch - 1) // nch
+    for c in prange(nch):
+        a = c * step
+        b = min(n, a + step)
+        for i in range(a, b):
+            v = d[i]
+            if (v > ZERO) & (v < INF):
+                hist[c, np.float32(v).view(np.int32) >> 16] += 1
+
+
+@njit(cache=True, nogil=True)
+def bits_rank_kernel(d, top, rank):
+    """The float32 bits of the value of rank ``rank`` (0-based) among the finite positive
+    values of d whose top 16 bits are ``top``."""
+    lo = np.zeros(65536, dtype=np.int64)
+    for i in range(d.shape[0]):
+        v = d[i]
+        b = np.float32(v).view(np.int32)
+        if (v > ZERO) & (v < INF) & ((b >> 16) == top):
+            lo[b & 0xFFFF] += 1
+    acc = np.int64(0)
+    for j in range(65536):
+        acc += lo[j]
+        if acc > rank:
+            return np.int32((top << 16) | j)
+    return np.int32(-1)

@@ -457,7 +457,7 @@ def _cache_cold() -> bool:
                 gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                 gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                 gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
-                gffe.hist_traj_kernel)
+                gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel)
     try:
         import os
 
@@ -778,6 +778,7 @@ def _warm_gffe(d) -> None:
     push_pull_fill(c, v, d)
     reproject_fill(c, v, d, c, d, cam, cam)
     vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
+    median_depth(d)
 
 
 # the gffe ops with these kernels for their camera geometry (the ops' ``geom`` argument;
@@ -1038,6 +1039,28 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
                            _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
                            _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
     return c, d, m, v
+
+
+def median_depth(depth):
+    """fgcli.ops.gffe.median_depth by an exact selection on the float32 bits
+    (bits_hist_kernel, bits_rank_kernel): the value of rank (n - 1) // 2 among the n finite
+    positive depths, the lower median torch.nanmedian returns."""
+    if not (isinstance(depth, torch.Tensor) and depth.device.type == "cpu"
+            and depth.dtype == torch.float32 and depth.numel() > 0):
+        return G.median_depth(depth)
+    from fgcli.kernels.gffe import bits_hist_kernel, bits_rank_kernel
+
+    d = _a(depth).reshape(-1)
+    hist = np.zeros((4, 32768), dtype=np.int64)
+    bits_hist_kernel(d, hist)
+    cum = np.cumsum(hist.sum(0))
+    n = int(cum[-1])
+    if n == 0:
+        return float("nan")
+    r = (n - 1) // 2
+    top = int(np.searchsorted(cum, r, side="right"))
+    rank = r - (int(cum[top - 1]) if top > 0 else 0)
+    return float(np.int32(bits_rank_kernel(d, top, rank)).view(np.float32))
 
 
 def push_pull_fill(color, valid, depth=None, far_bias=0.1):

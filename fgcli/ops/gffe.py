@@ -861,6 +861,14 @@ def project_border(border: dict, cam1, cam_x, holes: torch.Tensor, geom: Geometr
 
 # ----------------------------------------------------------------------------- window
 
+def median_depth(depth: torch.Tensor) -> float:
+    """The (lower) median of the finite positive values of ``depth``, NaN when there are
+    none: the adaptive window's default plane depth (the one value gffe reads back per
+    frame on a GPU)."""
+    ok = torch.isfinite(depth) & (depth > 0)
+    return float(torch.where(ok, depth, float("nan")).nanmedian())
+
+
 def render_window(cam, cam_x, plane_depth: float, limit: float = 4.0) -> tuple[float, ...]:
     """Appendix C, Eq. 5: the rendering window (u0, v0, u1, v1) in the current camera's NDC
     (the nominal window is (-1, -1, 1, 1)) that also covers what the extrapolated camera

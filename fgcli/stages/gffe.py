@@ -163,10 +163,10 @@ class GffeWindow(Stage):
                range=(1.0, 100.0)),
     )
 
+    uses_kernels = True
+
     def run(self, ctx):
         import math
-
-        import torch
 
         from fgcli.ops.gffe import render_window
 
@@ -174,9 +174,7 @@ class GffeWindow(Stage):
         if d <= 0:
             # the median of the finite positive depths (NaN when there are none): the one
             # value gffe reads back per frame on a GPU (the window is host metadata)
-            dep = ctx["depth1"]
-            ok = torch.isfinite(dep) & (dep > 0)
-            d = float(torch.where(ok, dep, float("nan")).nanmedian())
+            d = op("median_depth", ctx)(ctx["depth1"])
             if not (d > 0 and math.isfinite(d)):
                 d = 10.0
         try:
