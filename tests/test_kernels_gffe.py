@@ -441,3 +441,22 @@ def test_median_depth_matches_the_reference():
     for i, c in enumerate(cases):
         a, b = K.median_depth(c), G.median_depth(c)
         assert (math.isnan(a) and math.isnan(b)) or a == b, (i, a, b)
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+def test_collect_background_matches_the_reference(h, w):
+    """collect_background's kernels: first frame and with previous layers of either
+    layer-1 size, into either size, hard depths and colours, several margins."""
+    f = _hard_frames(h, w, h * 100 + w + 5)
+    traj, dyn = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"], k=3)
+    for sp in (1, 2):
+        prev = G.collect_background(f["ch"], f["d0"], ~dyn, f["cam0"], layer1_scale=sp)
+        prev = G.collect_background(f["c1"], f["dh"], ~f["holes"], f["cam0"], prev, f["cam1"],
+                                    layer1_scale=sp)
+        for sc in (1, 2):
+            for d1, st in ((f["d1"], ~dyn), (f["dh"], ~f["holes"])):
+                for tol in (0.02, 0.5):
+                    for pl in (prev, None):
+                        args = (f["ch"], d1, st, f["cam1"], pl, f["cam0"], tol, False, sc)
+                        same_tree(f"collect_background {h}x{w} {sp} {sc} {tol}",
+                                  K.collect_background(*args), G.collect_background(*args))

@@ -792,3 +792,121 @@ def bits_rank_kernel(d, top, rank):
         if acc > rank:
             return np.int32((top << 16) | j)
     return np.int32(-1)
+
+
+# ----------------------------------------------------------------------------- collection
+# fgcli.ops.gffe.collect_background with previous layers (edge_guard off): the new layer 0
+# (col_init_kernel), the two cases of the previous layer 0's fragments (col_case_kernel),
+# the previous layer 1's fragments behind layer 0 into free cells (col_behind_kernel), the
+# splats (splat_min_kernel) and their winners written into the layers (layer_fill_kernel).
+
+@njit(**KERNEL)
+def col_init_kernel(color1, depth1, static, d1, l0c, l0d, l0v):
+    """d1 = nan_to_num(depth1, nan=0) (+-inf -> +-float32 max); layer 0 = the usable
+    (d1 > 0, static) pixels' sanitised colour and d1, else 0 / +inf."""
+    h, w = depth1.shape
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            v = depth1[y, x]
+            r = FMAX if v == INF else v
+            r = -FMAX if v == -INF else r
+            r = ZERO if v != v else r
+            d1[y, x] = r
+            u = (r > ZERO) & (static[y, x] != U0)
+            for k in range(3):
+                l0c[k, y, x] = sval_b(color1[k, y, x]) if u else ZERO
+            l0d[y, x] = r if u else INF
+            l0v[y, x] = np.uint8(1) if u else U0
+
+
+@njit(**KERNEL)
+def col_case_kernel(px, py, dn, ok, l0d, l0v, d1, tol, case1, case2):
+    """The previous layer 0's fragments (at (px, py), depth dn, ok) against the new layer
+    0 at the pixel containing them: case 1 (an invalid cell, the fragment behind frame 1's
+    depth there or frame 1 without a surface), case 2 (a valid cell, the fragment deeper
+    than the cell's whole 3x3 neighbourhood, max_pool2d's padding left out)."""
+    h, w = px.shape
+    wf = F32(w)
+    hf = F32(h)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            ix = np.floor(px[y, x])
+            iy = np.floor(py[y, x])
+            inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf) & (ok[y, x] != U0)
+            n = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+            ny = n // w
+            nx = n - ny * w
+            av = l0v[ny, nx] != U0
+            ad1 = d1[ny, nx]
+            far = -INF
+            for oy in range(-1, 2):
+                for ox in range(-1, 2):
+                    yy = ny + oy
+                    xx = nx + ox
+                    inb = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+                    v = l0d[min(max(yy, 0), h - 1), min(max(xx, 0), w - 1)]
+                    far = v if (inb and v > far) else far
+            d = dn[y, x]
+            c1 = inside & (not av) & ((d > ad1 * tol) | (ad1 <= ZERO))
+            c2 = inside & av & (d > far * tol)
+            case1[y, x] = np.uint8(1) if c1 else U0
+            case2[y, x] = np.uint8(1) if c2 else U0
+
+
+@njit(**KERNEL)
+def col_behind_kernel(px, py, dn, ok, l0d, l0v, d1, l1v, tol, sc, out):
+    """The previous layer 1's fragments: behind the new layer 0 (or frame 1's depth where
+    layer 0 is empty) at the pixel containing them, and landing on a free layer 1 cell."""
+    h, w = l0d.shape
+    h2, w2 = l1v.shape
+    hs, ws = px.shape
+    wf = F32(w)
+    hf = F32(h)
+    w2f = F32(w2)
+    h2f = F32(h2)
+    for pr in prange(hs):
+        y = np.int64(pr)
+        for x in range(ws):
+            a = px[y, x]
+            b = py[y, x]
+            ix = np.floor(a)
+            iy = np.floor(b)
+            inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf) & (ok[y, x] != U0)
+            n = np.int64(clamp_b(iy, ZERO, hf - ONE) * wf + clamp_b(ix, ZERO, wf - ONE))
+            ny = n // w
+            nx = n - ny * w
+            av = l0v[ny, nx] != U0
+            ad = l0d[ny, nx] if av else d1[ny, nx]
+            d = dn[y, x]
+            beh = inside & (d > ad * tol) & (av | (ad > ZERO))
+            jx = np.floor(a / sc)
+            jy = np.floor(b / sc)
+            m = np.int64(clamp_b(jy, ZERO, h2f - ONE) * w2f + clamp_b(jx, ZERO, w2f - ONE))
+            my = m // w2
+            mx = m - my * w2
+            free = l1v[my, mx] == U0
+            out[y, x] = np.uint8(1) if (beh & free) else U0
+
+
+@njit(**KERNEL)
+def layer_fill_kernel(src, dep, pc, lc, ld, lv):
+    """A splat's winners into a layer, in place: cells without a valid fragment whose
+    splat has a winner take its colour (pc at the flat source index), depth, validity."""
+    h, w = src.shape
+    ws = pc.shape[2]
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            s = src[y, x]
+            f = (s >= 0) & (lv[y, x] == U0)
+            sc = max(s, np.int64(0))
+            sy = sc // ws
+            sx = sc - sy * ws
+            for k in range(3):
+                lc[k, y, x] = pc[k, sy, sx] if f else lc[k, y, x]
+            ld[y, x] = dep[y, x] if f else ld[y, x]
+            lv[y, x] = np.uint8(1) if (f | (lv[y, x] != U0)) else U0

@@ -457,7 +457,9 @@ def _cache_cold() -> bool:
                 gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                 gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                 gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
-                gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel)
+                gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
+                gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
+                gffe.layer_fill_kernel)
     try:
         import os
 
@@ -772,7 +774,9 @@ def _warm_gffe(d) -> None:
     traj, _ = track_history(d, mv1, cam, cam, d, None, 3, 0.5)
     track_history(d, mv1, cam, cam, None, traj, 3, 0.5)
     warp_positions(c, p, cam)
-    layers = G.collect_background(c, d, v, cam, layer1_scale=1)
+    layers = collect_background(c, d, v, cam, layer1_scale=1)
+    layers = collect_background(c, d, v, cam, layers, cam, layer1_scale=1)
+    collect_background(c, d, v, cam, layers, cam, layer1_scale=2)
     project_background(layers, cam, cam, ~v, "bilinear")
     background_fill(c, d, mv, v, layers, cam, cam, "bilinear", c, d, mv, 0.5, True, True)
     push_pull_fill(c, v, d)
@@ -850,7 +854,6 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     return traj, dyn
 
 
-collect_background = _with_geom("collect_background")
 project_border = _with_geom("project_border")
 
 
@@ -986,6 +989,58 @@ def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None
                            _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
                            _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
     return c, d, m, filled
+
+
+def collect_background(color1, depth1, static, cam1, prev_layers=None, cam_prev=None,
+                       depth_tol=0.02, edge_guard=False, layer1_scale=2, geom=None):
+    """fgcli.ops.gffe.collect_background (edge_guard off): the new layer 0, both cases of
+    the previous layer 0, the previous layer 1 behind layer 0, the three splats and their
+    winners as kernels (fgcli.kernels.gffe.col_* / layer_fill_kernel, _splat_min); the
+    layers' geometry by the geom kernels. edge_guard: the reference (GEOM)."""
+    H, W = depth1.shape[-2:] if isinstance(depth1, torch.Tensor) else (0, 0)
+    ok = (not edge_guard and layer1_scale in (1, 2) and _f32cpu(color1)
+          and tuple(color1.shape) == (3, H, W) and _f32cpu(depth1)
+          and tuple(depth1.shape) == (1, H, W) and _boolcpu(static, (1, H, W)))
+    hist = ok and prev_layers is not None and cam_prev is not None
+    if hist:
+        ok = (isinstance(prev_layers, (list, tuple)) and len(prev_layers) == 2
+              and _layer_ok(prev_layers[0], (H, W)))
+        if ok:
+            sp = G._layer_scale(prev_layers[1], H, W)
+            ok = _layer_ok(prev_layers[1], (H, W) if sp == 1.0 else G._half(H, W))
+    if not ok:
+        return G.collect_background(color1, depth1, static, cam1, prev_layers, cam_prev,
+                                    depth_tol, edge_guard, layer1_scale, geom=GEOM)
+    from fgcli.kernels.gffe import (col_behind_kernel, col_case_kernel, col_init_kernel,
+                                    layer_fill_kernel)
+
+    sc = float(layer1_scale)
+    h2, w2 = G._half(H, W) if layer1_scale == 2 else (H, W)
+    d1 = np.empty((H, W), dtype=np.float32)
+    l0 = {"color": _empty(3, H, W), "depth": _empty(1, H, W),
+          "valid": _empty(1, H, W, dtype=torch.bool)}
+    l0c, l0d, l0v = l0["color"].numpy(), l0["depth"].numpy()[0], _u8(l0["valid"])[0]
+    col_init_kernel(_a(color1), _a(depth1)[0], _u8(static)[0], d1, l0c, l0d, l0v)
+    l1 = G.empty_layer(h2, w2, "cpu")
+    if not hist:
+        return [l0, l1]
+    l1c, l1d, l1v = l1["color"].numpy(), l1["depth"].numpy()[0], _u8(l1["valid"])[0]
+    tol = F32(1.0 + float(depth_tol))
+    p0, p1 = prev_layers
+    px, py, dn, fok = G._layer_fragments(p0, cam_prev, cam1, (H, W), 1.0, GEOM)
+    c1, c2 = np.empty((H, W), dtype=np.uint8), np.empty((H, W), dtype=np.uint8)
+    col_case_kernel(_a(px), _a(py), _a(dn), _u8(fok), l0d, l0v, d1, tol, c1, c2)
+    pc = _a(p0["color"])
+    src, dep = _splat_min(px, py, 1.0, dn, torch.from_numpy(c1.view(np.bool_)), H, W)
+    layer_fill_kernel(src.numpy(), dep.numpy(), pc, l0c, l0d, l0v)
+    src, dep = _splat_min(px, py, sc, dn, torch.from_numpy(c2.view(np.bool_)), h2, w2)
+    layer_fill_kernel(src.numpy(), dep.numpy(), pc, l1c, l1d, l1v)
+    px, py, dn, fok = G._layer_fragments(p1, cam_prev, cam1, (H, W), sp, GEOM)
+    bm = np.empty(tuple(px.shape), dtype=np.uint8)
+    col_behind_kernel(_a(px), _a(py), _a(dn), _u8(fok), l0d, l0v, d1, l1v, tol, F32(sc), bm)
+    src, dep = _splat_min(px, py, sc, dn, torch.from_numpy(bm.view(np.bool_)), h2, w2)
+    layer_fill_kernel(src.numpy(), dep.numpy(), _a(p1["color"]), l1c, l1d, l1v)
+    return [l0, l1]
 
 
 def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="nearest",
