@@ -8,8 +8,15 @@ the internal convention: color (3,H,W), depth (1,H,W), mv (2,H,W) toward t-1, mv
 """
 from __future__ import annotations
 
-import numpy as np
-import pytest
+import os
+
+# as fgen itself (fgcli/cli.py, the benchmarks): torch's OpenMP threads must not spin,
+# or two busy processes on a 2-core machine (a test run beside a build) slow each other
+# down 10-50x; set before anything imports torch
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 SKY_ROWS = 4
 BG_SPEED = (1, 0)

@@ -410,3 +410,36 @@ def test_block_flow_subpixel_and_display_space_options():
     assert torch.allclose(out, c, atol=1e-6)
     with pytest.raises(ValueError):
         fsr3.interpolate_fsr3(c, c, z, one, one, 0.5, space="nope")
+
+
+def test_flow_is_computed_once_per_pair_with_the_same_result():
+    """The optical-flow stage keeps the pair's block flow and frame 1's luminance in the
+    run state: two generated frames per pair over three frames give the outputs of
+    stateless runs, and each frame's luminance (so each pair's flow) is computed once."""
+    from fgcli.ops import fsr3 as FS
+    from fgcli.runner import RunState
+
+    f = _frames("blade", 3)
+    p = pl.load("fsr3-interp")
+    stages = p.build("interp")
+    calls = []
+    real = FS.luma8
+
+    def counting(c):
+        calls.append(1)
+        return real(c)
+
+    st = RunState()
+    with torch.inference_mode():
+        FS.luma8, orig = counting, FS.luma8
+        try:
+            got = [pl.run_stages(stages, dict(make_ctx(f[i], f[i + 1], a, "interp"), state=st,
+                                              prev_time=0.0))["color"]
+                   for i in (0, 1) for a in (0.25, 0.75)]
+        finally:
+            FS.luma8 = orig
+        ref = [pl.run_stages(stages, dict(make_ctx(f[i], f[i + 1], a, "interp"), state=None,
+                                          prev_time=0.0))["color"]
+               for i in (0, 1) for a in (0.25, 0.75)]
+    assert all(torch.equal(x, y) for x, y in zip(got, ref))
+    assert len(calls) == 3  # frames 0, 1 and 2: each luminance once, each pair's flow once

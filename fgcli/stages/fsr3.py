@@ -113,6 +113,7 @@ class FSR3OpticalFlow(Stage):
             "(flow=dis, a stand-in, labelled). Then the optical-flow vector field of the "
             "interpolated frame (magnitude priority, atomic max, pyramid fill).")
     inputs = ("color0", "color1", "alpha")
+    optional_inputs = ("state", "number0", "number1")
     outputs = ("of_mv",)
     options = (
         Option("flow", "choice", "block", "block = FfxOpticalFlow-style block matching; dis = "
@@ -134,14 +135,31 @@ class FSR3OpticalFlow(Stage):
         from fgcli.ops.fsr3 import dis_flow, luma8, magnitude_priority, upsample_block_flow
 
         c0, c1 = ctx["color0"], ctx["color1"]
-        l0, l1 = luma8(c0), luma8(c1)
         h, w = c1.shape[-2:]
-        f = dis_flow(l0, l1) if self.flow == "dis" else \
-            op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
-                                  self.subpixel)
-        if self.min_flow > 0:
-            f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
-        hi = magnitude_priority(f)
+        # the flow depends on the pair only: with --factor N it is computed once for the
+        # N - 1 generated frames of a pair, and frame 1's luminance serves the next pair
+        # (the runner's per-sequence state; cleared at a scene cut)
+        n0, n1 = ctx.get("number0"), ctx.get("number1")
+        st = ctx.get("state")
+        memo = None
+        if st is not None and n0 is not None and n1 is not None:
+            memo = st.store.setdefault("fsr3_flow", {})
+        key = (n0, n1, str(c1.device), self.flow, self.levels, self.search, self.median,
+               self.subpixel, self.min_flow)
+        if memo is not None and memo.get("pair") == key:
+            f, hi = memo["f"], memo["hi"]
+        else:
+            l0 = memo["luma"][1] if memo is not None and memo.get("luma", (None,))[0] == \
+                (n0, key[2]) else luma8(c0)  # frame 0 was the last pair's frame 1
+            l1 = luma8(c1)
+            f = dis_flow(l0, l1) if self.flow == "dis" else \
+                op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
+                                      self.subpixel)
+            if self.min_flow > 0:
+                f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
+            hi = magnitude_priority(f)
+            if memo is not None:
+                memo.update(pair=key, f=f, hi=hi, luma=((n1, key[2]), l1))
         if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
             f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
