@@ -460,3 +460,19 @@ def test_collect_background_matches_the_reference(h, w):
                         args = (f["ch"], d1, st, f["cam1"], pl, f["cam0"], tol, False, sc)
                         same_tree(f"collect_background {h}x{w} {sp} {sc} {tol}",
                                   K.collect_background(*args), G.collect_background(*args))
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+def test_dilated_positions_matches_the_reference(h, w):
+    """The position stage's dilation + Eq. 1 in one kernel: k 2-4, linear / quadratic,
+    with and without the dynamic mask, several alphas."""
+    f = _hard_frames(h, w, h * 100 + w + 3)
+    for k in (2, 3, 4):
+        traj, dyn = G.track_history(f["dh"], f["mh"], f["cam1"], f["cam0"], f["d0"], k=k)
+        for d1 in (f["d1"], f["dh"]):
+            for dd in (dyn, None):
+                for a, motion in ((0.5, "linear"), (3.0, "linear"), (0.5, "quadratic"),
+                                  (1.0, "quadratic")):
+                    args = (traj, d1, f["cam1"], dd, a, motion)
+                    same_tree(f"dilated_positions {h}x{w} k{k} {a} {motion}",
+                              K.dilated_positions(*args), G.dilated_positions(*args))

@@ -36,6 +36,7 @@ KERNEL_OPS = {
     "project": "fgcli.ops.gffe",
     "track_history": "fgcli.ops.gffe",
     "dilate_trajectory": "fgcli.ops.gffe",
+    "dilated_positions": "fgcli.ops.gffe",
     "warp_positions": "fgcli.ops.gffe",
     "collect_background": "fgcli.ops.gffe",
     "project_background": "fgcli.ops.gffe",

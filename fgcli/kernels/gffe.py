@@ -125,6 +125,61 @@ def dilate_traj_kernel(traj, src, dyn, has_dyn, pd, out):
                     out[i, c, y, x] = v if ok else traj[i, c, y, x]
 
 
+@njit(**KERNEL)
+def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
+    """estimate_positions(dilate_trajectory(...)) without the dilated trajectory: P_0' as
+    dilate_traj_kernel's, P_1' (and P_2' when quad) per pixel, then Eq. 1 (a: alpha;
+    quad: + cq * (P_0' - 2 P_1' + P_2')) where the kinds agree, else P_0'; out (4, H, W)."""
+    h, w = src.shape[1:]
+    hm1 = F32(h - 1)
+    wm1 = F32(w - 1)
+    wf = F32(w)
+    i2 = 2 if quad else 1  # (k = 2: a plane that exists, unused)
+    two = F32(2.0)
+    for pr in prange(h):
+        y = np.int64(pr)
+        nidx = np.empty(w, dtype=np.int64)
+        both = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            fi = clamp_b(np.floor(src[1, y, x]), ZERO, hm1) * wf + \
+                clamp_b(np.floor(src[0, y, x]), ZERO, wm1)
+            n = np.int64(fi)
+            ny = n // w
+            nx = n - ny * w
+            nidx[x] = n
+            t3 = traj[0, 3, ny, nx]
+            b = (t3 > ZERO) & (traj[0, 3, y, x] > ZERO)
+            dn = (dyn[ny, nx] != U0) | (not has_dyn)
+            dx = (dyn[y, x] != U0) & has_dyn
+            b = b & dn & (not dx)
+            both[x] = ONE if b else ZERO
+            take = b & (pd[3, y, x] > ZERO)
+            for c in range(4):
+                out[c, y, x] = pd[c, y, x] if take else traj[0, c, y, x]
+        for x in range(w):
+            n = nidx[x]
+            ny = n // w
+            nx = n - ny * w
+            b = both[x] != ZERO
+            t03 = traj[0, 3, ny, nx]
+            ok1 = b & (traj[1, 3, ny, nx] == t03)
+            ok2 = b & (traj[i2, 3, ny, nx] == t03)
+            p03 = out[3, y, x]
+            q13 = (p03 - (t03 - traj[1, 3, ny, nx])) if ok1 else traj[1, 3, y, x]
+            q23 = (p03 - (t03 - traj[i2, 3, ny, nx])) if ok2 else traj[i2, 3, y, x]
+            same = (q13 == p03) & ((q23 == p03) | (not quad))
+            for c in range(3):
+                p0c = out[c, y, x]
+                q1 = (p0c - (traj[0, c, ny, nx] - traj[1, c, ny, nx])) if ok1 else \
+                    traj[1, c, y, x]
+                q2 = (p0c - (traj[0, c, ny, nx] - traj[i2, c, ny, nx])) if ok2 else \
+                    traj[i2, c, y, x]
+                r = p0c + a * (p0c - q1)
+                rq = r + cq * ((p0c - two * q1) + q2)
+                r = rq if quad else r
+                out[c, y, x] = r if same else p0c
+
+
 # ----------------------------------------------------------------------------- background
 
 @njit(**KERNEL)

@@ -459,7 +459,7 @@ def _cache_cold() -> bool:
                 gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
                 gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
                 gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
-                gffe.layer_fill_kernel)
+                gffe.layer_fill_kernel, gffe.dilate_pos_kernel)
     try:
         import os
 
@@ -770,6 +770,7 @@ def _warm_gffe(d) -> None:
     mv = torch.zeros(2, h, w)
     v = d < 1.5
     dilate_trajectory(torch.stack([p, p]), d, cam, v)
+    dilated_positions(torch.stack([p, p]), d, cam, v, 0.5)
     mv1 = torch.full((2, h, w), 3.0)
     traj, _ = track_history(d, mv1, cam, cam, d, None, 3, 0.5)
     track_history(d, mv1, cam, cam, None, traj, 3, 0.5)
@@ -930,6 +931,36 @@ def dilate_trajectory(traj, depth1, cam1, dynamic=None, geom=None):
     dyn = _u8(dynamic)[0] if dynamic is not None else np.zeros((h, w), dtype=np.uint8)
     out = _empty(k, 4, h, w)
     dilate_traj_kernel(_a(traj), _a(src), dyn, dynamic is not None, _a(pd), out.numpy())
+    return out
+
+
+def dilated_positions(traj, depth1, cam1, dynamic, alpha, motion="linear", geom=None):
+    """fgcli.ops.gffe.dilated_positions: the dilation kernel, then the dilated P_0', P_1'
+    (P_2') and Eq. 1 in one kernel (dilate_pos_kernel; the k-plane trajectory is never
+    written)."""
+    ok = _f32cpu(traj, 4) and traj.shape[1] == 4 and traj.shape[0] >= 2 and \
+        _f32cpu(depth1) and depth1.shape == (1,) + tuple(traj.shape[-2:]) and \
+        (dynamic is None or _boolcpu(dynamic, depth1.shape)) and \
+        motion in ("linear", "quadratic")
+    if ok:
+        try:
+            a = check_alpha(alpha, hi=None)
+        except (ValueError, TypeError):
+            ok = False
+    if not ok:
+        return G.dilated_positions(traj, depth1, cam1, dynamic, alpha, motion, geom=GEOM)
+    from fgcli.kernels.gffe import dilate_pos_kernel
+
+    k, _, h, w = traj.shape
+    quad = motion == "quadratic" and k >= 3
+    ax = aux(h, w, "cpu")
+    coords = torch.stack([ax["xh"].expand(h, w), ax["yh"].expand(h, w)])
+    dd, src = dilate_nearest_depth(depth1, coords)
+    pd = unproject(dd, cam1)
+    dyn = _u8(dynamic)[0] if dynamic is not None else np.zeros((h, w), dtype=np.uint8)
+    out = _empty(4, h, w)
+    dilate_pos_kernel(_a(traj), _a(src), dyn, dynamic is not None, _a(pd), F32(a), quad,
+                      F32(a * (a + 1.0) / 2.0), out.numpy())
     return out
 
 

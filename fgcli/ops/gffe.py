@@ -451,6 +451,15 @@ def estimate_positions(traj: torch.Tensor, alpha: float, motion: str = "linear")
     return torch.where(same[None], out, p0)
 
 
+def dilated_positions(traj: torch.Tensor, depth1: torch.Tensor, cam1,
+                      dynamic: torch.Tensor | None, alpha: float, motion: str = "linear",
+                      geom: Geometry | None = None) -> torch.Tensor:
+    """The position stage with dilation: estimate_positions(dilate_trajectory(traj,
+    depth1, cam1, dynamic), alpha, motion) (4, H, W)."""
+    return estimate_positions(dilate_trajectory(traj, depth1, cam1, dynamic, geom=geom),
+                              alpha, motion)
+
+
 # ----------------------------------------------------------------------------- splats
 
 def _splat_min(tx: torch.Tensor, ty: torch.Tensor, key_depth: torch.Tensor, use: torch.Tensor,

@@ -229,9 +229,11 @@ class GffePosition(Stage):
             return self.skip(ctx)
         d1 = ctx.get("depth1")
         if self.dilate != "off" and d1 is not None and ctx.get("camera1") is not None:
-            traj = op("dilate_trajectory", ctx)(
-                traj, d1, ctx["camera1"], ctx.get("dynamic") if self.dilate == "dynamic" else None)
-        pos = estimate_positions(traj, ctx["alpha"], self.motion)
+            pos = op("dilated_positions", ctx)(
+                traj, d1, ctx["camera1"], ctx.get("dynamic") if self.dilate == "dynamic" else None,
+                ctx["alpha"], self.motion)
+        else:
+            pos = estimate_positions(traj, ctx["alpha"], self.motion)
         return {"positions": pos}
 
 
