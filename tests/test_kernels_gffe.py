@@ -476,3 +476,24 @@ def test_dilated_positions_matches_the_reference(h, w):
                     args = (traj, d1, f["cam1"], dd, a, motion)
                     same_tree(f"dilated_positions {h}x{w} k{k} {a} {motion}",
                               K.dilated_positions(*args), G.dilated_positions(*args))
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+def test_fill_holes_matches_the_reference(h, w):
+    """The hole-fill stage's op: push-pull, the vectors and the reprojection (kernels),
+    with a border / push_pull only / without cameras (the composition of the ops)."""
+    f = _hard_frames(h, w, h * 100 + w + 13)
+    b = 2
+    border = {"origin": (-b, -b), "color": torch.rand(3, h + 2 * b, w + 2 * b),
+              "depth": torch.nn.functional.pad(f["d1"], (b, b, b, b), value=5.0)}
+    v = ~f["holes"]
+    for col, dep, mv in ((f["ch"], f["dh"], f["mh"]), (f["c1"], f["d1"], f["mv1"])):
+        for fb, mode, off, bd, cams in ((0.1, "reproject", "clamp", None, True),
+                                        (0.0, "reproject", "skip", None, True),
+                                        (0.5, "push_pull", "clamp", None, True),
+                                        (0.1, "reproject", "clamp", border, True),
+                                        (0.1, "reproject", "clamp", None, False)):
+            c1, cx = (f["cam1"], f["cam_x"]) if cams else (None, None)
+            args = (col, dep, mv, v, fb, mode, off, True, f["ch"], f["dh"], c1, cx, bd)
+            same_tree(f"fill_holes {h}x{w} {fb} {mode} {off} {bd is not None} {cams}",
+                      K.fill_holes(*args), G.fill_holes(*args))

@@ -43,6 +43,7 @@ KERNEL_OPS = {
     "background_fill": "fgcli.ops.gffe",
     "project_border": "fgcli.ops.gffe",
     "reproject_fill": "fgcli.ops.gffe",
+    "fill_holes": "fgcli.ops.gffe",
     "push_pull_fill": "fgcli.ops.gffe",
     "vector_rule_fill": "fgcli.ops.gffe",
     "median_depth": "fgcli.ops.gffe",

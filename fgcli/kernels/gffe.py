@@ -652,6 +652,52 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
 
 
 @njit(**KERNEL)
+def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took, flow,
+                        mv_out):
+    """reproject_took_kernel, and the hole fill's vectors: flow where took, else mv0 on
+    the valid pixels, else 0."""
+    h, w = depth.shape
+    hs, ws = depth1.shape
+    wf = F32(w)
+    hf = F32(h)
+    wsf = F32(ws)
+    hsf = F32(hs)
+    for pr in prange(h):
+        y = np.int64(pr)
+        yh = F32(y) + HALF
+        for x in range(w):
+            o = ok[y, x] != U0
+            sx = px[y, x]
+            sy = py[y, x]
+            cx = clamp_b(sx, HALF, wf - HALF)
+            cy = clamp_b(sy, HALF, hf - HALF)
+            sx = cx if (o & clamp) else sx
+            sy = cy if (o & clamp) else sy
+            ix = np.floor(sx)
+            iy = np.floor(sy)
+            inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
+            j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
+            jy = _div(j, ws)
+            jx = j - jy * ws
+            s = depth1[jy, jx]
+            s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
+            s = FMAX if s > FMAX else s
+            s = -FMAX if s < -FMAX else s
+            dq = depth[y, x]
+            vv = valid[y, x] != U0
+            t = (not vv) & o & inside & (s >= dq * keep)
+            took[y, x] = np.uint8(1) if t else U0
+            f0 = (sx - (F32(x) + HALF)) if t else ZERO
+            f1 = (sy - yh) if t else ZERO
+            flow[0, y, x] = f0
+            flow[1, y, x] = f1
+            m0 = mv0[0, y, x] if vv else ZERO
+            m1 = mv0[1, y, x] if vv else ZERO
+            mv_out[0, y, x] = f0 if t else m0
+            mv_out[1, y, x] = f1 if t else m1
+
+
+@njit(**KERNEL)
 def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_out, mv_out):
     """vector_rule_fill up to the sampling: extrap_hole_fill on the holes (frame 1 read
     ``a * mv1(q)`` away, the vector where that is not nearer than q by more than 1 - keep),

@@ -459,7 +459,7 @@ def _cache_cold() -> bool:
                 gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
                 gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
                 gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
-                gffe.layer_fill_kernel, gffe.dilate_pos_kernel)
+                gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
     try:
         import os
 
@@ -782,6 +782,7 @@ def _warm_gffe(d) -> None:
     background_fill(c, d, mv, v, layers, cam, cam, "bilinear", c, d, mv, 0.5, True, True)
     push_pull_fill(c, v, d)
     reproject_fill(c, v, d, c, d, cam, cam)
+    fill_holes(c, d, mv, v, 0.1, "reproject", "clamp", True, c, d, cam, cam)
     vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
     median_depth(d)
 
@@ -1209,6 +1210,56 @@ def reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol=0
                           _u8(took)[0], flow.numpy())
     out, _ = _sample_where(color1, flow, took, base=color)
     return out, flow, took
+
+
+def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscreen="clamp",
+               border_splat=True, color1=None, depth1=None, cam1=None, cam_x=None,
+               border=None, geom=None):
+    """fgcli.ops.gffe.fill_holes: push_pull_fill's kernels, then (no border, mode
+    'reproject') the proxy test and the vectors in one kernel (reproject_mv_kernel) and
+    the bilinear read; anything else: the reference's composition of these ops."""
+    H, W = color.shape[-2:] if isinstance(color, torch.Tensor) else (0, 0)
+    cams = cam1 is not None and cam_x is not None
+    ok = (border is None and mode == "reproject" and cams and offscreen in ("clamp", "skip")
+          and _f32cpu(color) and color.shape[0] == 3 and _f32cpu(color1)
+          and color1.shape == color.shape and _f32cpu(depth) and _f32cpu(depth1)
+          and depth.shape == (1, H, W) and depth1.shape == (1, H, W) and _f32cpu(mv)
+          and mv.shape == (2, H, W) and _boolcpu(valid, (1, H, W)))
+    if not ok:
+        return _fill_holes_ref(color, depth, mv, valid, far_bias, mode, offscreen,
+                               border_splat, color1, depth1, cam1, cam_x, border)
+    from fgcli.kernels.gffe import reproject_mv_kernel
+
+    c, d = push_pull_fill(color, valid, depth, far_bias)
+    X = unproject(d, cam_x)
+    px, py, _, pok = project(X, cam1, (H, W))
+    took = _empty(1, H, W, dtype=torch.bool)
+    flow, out = _empty(2, H, W), _empty(2, H, W)
+    vu = _u8(valid)[0]
+    reproject_mv_kernel(px.numpy(), py.numpy(), _u8(pok), vu, _a(d)[0], _a(depth1)[0],
+                        offscreen == "clamp", F32(1.0 - 0.05), _a(mv), _u8(took)[0],
+                        flow.numpy(), out.numpy())
+    c, _ = _sample_where(color1, flow, took, base=c)
+    holes = torch.tensor(int(vu.size - np.count_nonzero(vu)), dtype=torch.int64)
+    return c, d, out, holes
+
+
+def _fill_holes_ref(color, depth, mv, valid, far_bias, mode, offscreen, border_splat,
+                    color1, depth1, cam1, cam_x, border):
+    """fgcli.ops.gffe.fill_holes's composition with this module's ops."""
+    v = valid
+    cams = cam1 is not None and cam_x is not None
+    if border is not None and cams and border_splat:
+        bc, bd, bm, bf = project_border(border, cam1, cam_x, ~v)
+        color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
+        mv, v = torch.where(bf, bm, mv), v | bf
+    c, d = push_pull_fill(color, v, depth, far_bias)
+    out = torch.where(v, mv, torch.zeros_like(mv))
+    if mode == "reproject" and cams:
+        c, flow, took = reproject_fill(c, v, d, color1, depth1, cam1, cam_x,
+                                       offscreen=offscreen, border=border)
+        out = torch.where(took, flow, out)
+    return c, d, out, (~v).sum()
 
 
 def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,

@@ -1055,6 +1055,33 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     return out, flow, took[None]
 
 
+def fill_holes(color: torch.Tensor, depth: torch.Tensor, mv: torch.Tensor,
+               valid: torch.Tensor, far_bias: float = 0.1, mode: str = "reproject",
+               offscreen: str = "clamp", border_splat: bool = True,
+               color1: torch.Tensor | None = None, depth1: torch.Tensor | None = None,
+               cam1=None, cam_x=None, border: dict | None = None,
+               geom: Geometry | None = None):
+    """The hole-fill stage (gffe_hole_fill) as one op: the overscan border's fragments
+    first (border_splat, with both cameras), the far-biased push-pull, zero vectors in
+    its pixels, then (mode 'reproject', with both cameras) reproject_fill.
+
+    Returns (color, depth, mv, holes: the number of pixels the push-pull filled, a 0-dim
+    int64 tensor)."""
+    v = valid
+    cams = cam1 is not None and cam_x is not None
+    if border is not None and cams and border_splat:
+        bc, bd, bm, bf = project_border(border, cam1, cam_x, ~v, geom=geom)
+        color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
+        mv, v = torch.where(bf, bm, mv), v | bf
+    c, d = push_pull_fill(color, v, depth, far_bias)
+    out = torch.where(v, mv, torch.zeros_like(mv))
+    if mode == "reproject" and cams:
+        c, flow, took = reproject_fill(c, v, d, color1, depth1, cam1, cam_x,
+                                       offscreen=offscreen, border=border, geom=geom)
+        out = torch.where(took, flow, out)
+    return c, d, out, (~v).sum()
+
+
 def _proxy_took(valid, depth, src_depth, sx, sy, ok, depth_tol):
     """(H, W) bool: the holes whose proxy point (sx, sy) (pixel coordinates in the source
     arrays, src_depth (1, Hs, Ws)) lies on them, in front of the camera, where the source

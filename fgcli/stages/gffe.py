@@ -445,23 +445,9 @@ class GffeHoleFill(Stage):
         return {"color": ctx["color"], "depth": ctx["depth"], "mv": ctx["mv"], "holes": 0}
 
     def run(self, ctx):
-        import torch
-
-        v, color, depth, mv0 = ctx["valid"], ctx["color"], ctx["depth"], ctx["mv"]
-        border = ctx.get("window_border")
-        cams = ctx.get("camera1") is not None and ctx.get("camera_x") is not None
-        if border is not None and cams and self.border_splat:
-            # the rendered border first: its own fragments, where they land in a hole
-            bc, bd, bm, bf = op("project_border", ctx)(border, ctx["camera1"], ctx["camera_x"],
-                                                       ~v)
-            color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
-            mv0, v = torch.where(bf, bm, mv0), v | bf
-        c, d = op("push_pull_fill", ctx)(color, v, depth, self.far_bias)
-        mv = torch.where(v, mv0, torch.zeros_like(mv0))
-        if self.mode == "reproject" and cams:
-            c, flow, took = op("reproject_fill", ctx)(c, v, d, ctx["color1"], ctx["depth1"],
-                                                      ctx["camera1"], ctx["camera_x"],
-                                                      offscreen=self.offscreen, border=border)
-            mv = torch.where(took, flow, mv)
         # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
-        return {"color": c, "depth": d, "mv": mv, "holes": (~v).sum()}
+        c, d, mv, holes = op("fill_holes", ctx)(
+            ctx["color"], ctx["depth"], ctx["mv"], ctx["valid"], self.far_bias, self.mode,
+            self.offscreen, self.border_splat, ctx.get("color1"), ctx.get("depth1"),
+            ctx.get("camera1"), ctx.get("camera_x"), ctx.get("window_border"))
+        return {"color": c, "depth": d, "mv": mv, "holes": holes}
