@@ -300,7 +300,7 @@ def test_gffe_extrap_numba_equals_torch(orbit_frames, name, monkeypatch):
         a = _run(name, orbit_frames, "numba", alpha)
         b = _run(name, orbit_frames, "torch", alpha)
         for i, (x, y) in enumerate(zip(a, b)):
-            same_tree(f"{name} alpha {alpha} frame {i}", x, y)
+            close_tree(f"{name} alpha {alpha} frame {i}", x, y)
     # the kernels ran: the frame's pixels, and the overscan border's (project_border)
     assert (36, 64) in seen and (44, 72) in seen
     assert any(bool(torch.isinf(f.depth).any()) for f in orbit_frames)  # sky
@@ -316,8 +316,14 @@ EXACT = torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX")
 
 def close_tree(name, a, b):
     if isinstance(a, torch.Tensor) and not EXACT and a.dtype.is_floating_point:
-        eq = (a == b) | torch.isclose(a, b, rtol=1e-5, atol=1e-5)
-        assert float((~eq).float().mean()) <= 0.01, name
+        # float32 rounding of a product taken apart or fused: relative 1e-5 (a few ulps
+        # of the values' scale, 1e-6 measured on the orbit pipeline); a discrete decision
+        # at a rounding boundary (a splat target, a depth test) may flip: up to 1 % of the
+        # elements, and at least one
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        eq = (a == b) | torch.isclose(a, b, rtol=1e-5, atol=1e-5) | (a.isnan() & b.isnan())
+        bad = int((~eq).sum())
+        assert bad <= max(1, 0.01 * eq.numel()), f"{name}: {bad} of {eq.numel()} differ"
     elif isinstance(a, (tuple, list)):
         for i, (x, y) in enumerate(zip(a, b)):
             close_tree(f"{name}[{i}]", x, y)
