@@ -128,11 +128,20 @@ def main():
                            cwd=ROOT)
         loads.append(float(r.stdout.strip().splitlines()[-1]) * 1000 if r.returncode == 0
                      else float("nan"))
+    core_ms = float("nan")
     if not loads:
         loads = [float("nan")] * 2
     else:
+        # what a mob-fgsr / mv-warp / blend run loads (fgen loads only its pipeline's
+        # kernel families)
+        r = subprocess.run([sys.executable, "-c", "from fgcli.kernels.ops import warm; "
+                            "print(warm(families={'core'}))"], capture_output=True, text=True,
+                           cwd=ROOT)
+        if r.returncode == 0:
+            core_ms = float(r.stdout.strip().splitlines()[-1]) * 1000
         print(f"numba kernels, fresh process: first {loads[0]:.0f} ms (compiles when the cache "
-              f"is cold), then {loads[1]:.0f} ms (cached)\n")
+              f"is cold), then {loads[1]:.0f} ms (cached; all of them), {core_ms:.0f} ms "
+              f"for the shared ones alone (what mob-fgsr loads)\n")
     names = list(pl.available()) if args.pipelines == "all" else args.pipelines.split(",")
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     from fgcli.kernels import resolve
@@ -141,7 +150,8 @@ def main():
     result = {"size": [W, H], "threads": torch.get_num_threads(), "torch": torch.__version__,
               "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
-              "kernel_load_ms": {"first_process": loads[0], "cached": loads[1]},
+              "kernel_load_ms": {"first_process": loads[0], "cached": loads[1],
+                                 "cached_core": core_ms},
               "pipelines": {}}
     cols = " | ".join(f"{b} ms/frame | {b} x copy" for b in backends)
     print(f"| pipeline | mode | {cols} | speed-up | stages (median ms, "

@@ -503,13 +503,14 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     stages = pipeline.build(mode)
     kernel_load_s = None
     if backend == "numba" and any(st.uses_kernels for _, st in stages):
-        from fgcli.kernels.ops import _cache_cold, warm
+        from fgcli.kernels.ops import _cache_cold, families_of, warm
 
-        if _cache_cold():
+        fams = families_of([st for _, st in stages])  # only what this pipeline calls
+        if _cache_cold(fams):
             print("fgen: compiling the numba CPU kernels (first run of this fgen version on "
                   "this machine: about a minute on 2 cores; --backend torch skips them)",
                   file=sys.stderr)
-        kernel_load_s = warm()
+        kernel_load_s = warm(families=fams)
         if kernel_load_s > 3.0:
             print(f"fgen: compiled the numba CPU kernels in {kernel_load_s:.0f} s (once per "
                   f"machine and fgen version; cached, later runs load them in < 1 s)",

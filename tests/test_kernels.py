@@ -553,14 +553,34 @@ def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
     assert outs[1] == ["0", "False"], outs  # the second compiled nothing
 
 
+def test_a_run_loads_only_its_pipelines_kernel_families():
+    """fgen loads (and on a cold cache compiles) only the kernels a pipeline's stages call:
+    mob-fgsr the shared ones, fsr3-interp / gffe-extrap theirs too."""
+    from fgcli import pipeline as pl
+    from fgcli.kernels.ops import families_of
+
+    fam = {n: families_of([st for _, st in pl.load(n).build(pl.load(n).modes[0])])
+           for n in ("mob-fgsr", "mv-warp", "fsr3-interp", "gffe-extrap")}
+    assert fam == {"mob-fgsr": {"core"}, "mv-warp": {"core"}, "fsr3-interp": {"core", "fsr3"},
+                   "gffe-extrap": {"core", "gffe"}}
+    code = ("from fgcli.kernels import ops, fsr3, geom, splat; ops.warm(families={'core'}); "
+            "print(len(splat.splat_kernel.overloads), len(fsr3.interp_game_kernel.overloads), "
+            "len(geom.project_kernel.overloads))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=900, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["1", "0", "0"], r.stdout
+
+
 def test_cold_cache_is_announced_before_compiling(tmp_path, monkeypatch, capsys):
     # a first run says it is compiling before the pause, not only after it
     from fgcli.cli import main
     from fgcli.kernels import ops as kops
 
     seen = []
-    monkeypatch.setattr(kops, "_cache_cold", lambda: True)
-    monkeypatch.setattr(kops, "warm", lambda: seen.append(capsys.readouterr().err) or 0.01)
+    monkeypatch.setattr(kops, "_cache_cold", lambda families=None: True)
+    monkeypatch.setattr(kops, "warm", lambda parallel=True, families=None:
+                        seen.append(capsys.readouterr().err) or 0.01)
     src = os.path.join(ROOT, "sample_data", "blade", "input")
     with pytest.raises(SystemExit) as e:
         main(["interpolate", src, str(tmp_path / "o"), "--frames", "0-2x2", "--backend",

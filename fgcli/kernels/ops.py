@@ -403,63 +403,84 @@ def _inputs():
     return locals()
 
 
-# two groups of about equal compile time (~30 s each on the 2-core build machine)
+# two groups of about equal compile time (compiled by two processes on a cold cache), each
+# call tagged with its kernel family: "core" (mob-fgsr, mv-warp, blend and the shared
+# dilation / splat / gap fill), "fsr3", "gffe". A run loads the families its stages use.
 _GROUPS = (
-    (lambda i: dilate_nearest_depth(i["d"], i["mv"]),
-     lambda i: dilate_nearest_depth(i["d"], i["mv"], 2),
-     lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp", i["d"], 0.05),
-     lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"]),
-     lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None, 0.5,
-                         0.02, 0.13, static_from=i["gf"]),
-     lambda i: any_nonzero(i["mv"]),
-     lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"]),
-     lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5, i["mv"]),
-     lambda i: avg_pool2(i["c"]),
-     lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"]),
-     lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64))),
-    (lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0),
-     lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"]),
-     lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5),
-     lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5),
-     lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8),
-     lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64)),
-     lambda i: reconstruct_depths(i["d"], i["mv"]),
-     lambda i: _warm_gffe(i["d"])),
+    (("core", lambda i: dilate_nearest_depth(i["d"], i["mv"])),
+     ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"], 2)),
+     ("core", lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp",
+                                     i["d"], 0.05)),
+     ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),
+     ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
+                                  0.5, 0.02, 0.13, static_from=i["gf"])),
+     ("core", lambda i: any_nonzero(i["mv"])),
+     ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
+     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
+                                         i["mv"])),
+     ("fsr3", lambda i: avg_pool2(i["c"])),
+     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
+     ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
+    (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
+     ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
+     ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),
+     ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
+     ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
+     ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64))),
+     ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
+     ("gffe", lambda i: _warm_gffe(i["d"]))),
 )
+FAMILIES = ("core", "fsr3", "gffe")
 
 
-def _warm_group(k: int) -> None:
+def families_of(stages) -> set:
+    """The kernel families a built pipeline's stages call (fgcli.stages.fsr3 -> "fsr3",
+    fgcli.stages.gffe -> "gffe"; every kernel pipeline also uses the shared "core" ones)."""
+    fams = {"core"}
+    for st in stages:
+        mod = type(st).__module__.rsplit(".", 1)[-1]
+        if getattr(st, "uses_kernels", False) and mod in FAMILIES:
+            fams.add(mod)
+    return fams
+
+
+def _warm_group(k: int, families=None) -> None:
     i = _inputs()
-    for call in _GROUPS[k]:
-        call(i)
+    for fam, call in _GROUPS[k]:
+        if families is None or fam in families:
+            call(i)
 
 
-def _cache_cold() -> bool:
-    """True when some kernel has no on-disk cache index yet (a fresh install). A stale index
-    (an upgrade) reads as warm: those kernels then compile one after the other, as before."""
+def _cache_cold(families=None) -> bool:
+    """True when some kernel (of the given families; default all) has no on-disk cache index
+    yet (a fresh install). A stale index (an upgrade) reads as warm: those kernels then
+    compile one after the other, as before."""
     from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, splat, warp
 
-    kernels = (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
-               fill.gap_fill_kernel,
-               fill.extrap_fill_kernel, warp.warp_kernel, warp.mv_warp_kernel,
-               blend.blend_kernel, blend.crossfade_kernel, blend.any_nonzero_kernel,
-               flow.block_search_kernel, field.field_scatter_kernel,
-               field.depth_scatter_kernel, fsr3.disocclusion_kernel,
-               fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
-               field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
-    from fgcli.kernels import geom
+    fams = set(FAMILIES if families is None else families)
+    kernels = ()
+    if "core" in fams:
+        kernels += (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
+                    fill.gap_fill_kernel, fill.extrap_fill_kernel, warp.warp_kernel,
+                    warp.mv_warp_kernel, blend.blend_kernel, blend.crossfade_kernel,
+                    blend.any_nonzero_kernel)
+    if "fsr3" in fams:
+        kernels += (flow.block_search_kernel, field.field_scatter_kernel,
+                    field.depth_scatter_kernel, fsr3.disocclusion_kernel,
+                    fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
+                    field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
+    from fgcli.kernels import geom, gffe
 
-    kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
-    from fgcli.kernels import gffe
-
-    kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
-                gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
-                gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
-                gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
-                gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
-                gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
-                gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
-                gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
+    if "gffe" in fams:
+        kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
+        kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
+                    gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
+                    gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
+                    gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
+                    gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
+                    gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
+                    gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
+                    gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
     try:
         import os
 
@@ -468,12 +489,12 @@ def _cache_cold() -> bool:
         return False
 
 
-def warm(parallel: bool = True) -> float:
+def warm(parallel: bool = True, families=None) -> float:
     """Load (or, on a machine's first run, compile into numba's on-disk cache) every kernel
-    by calling it once on an 8x8 input, so that cost is paid and measured at start-up
-    instead of inside the first frame's timings. A cold cache is filled by two processes at
-    once (numba compiles under the GIL; ~2x faster on 2 cores). Returns the seconds it
-    took."""
+    of the given families (default: all; see families_of) by calling it once on an 8x8
+    input, so that cost is paid and measured at start-up instead of inside the first
+    frame's timings. A cold cache is filled by two processes at once (numba compiles under
+    the GIL; ~2x faster on 2 cores). Returns the seconds it took."""
     import os
     import subprocess
     import sys
@@ -481,20 +502,22 @@ def warm(parallel: bool = True) -> float:
 
     t0 = time.perf_counter()
     proc = None
-    if parallel and (os.cpu_count() or 1) > 1 and sys.executable and _cache_cold():
+    fams = None if families is None else sorted(set(families) & set(FAMILIES))
+    if parallel and (os.cpu_count() or 1) > 1 and sys.executable and _cache_cold(fams):
         try:
             proc = subprocess.Popen(
                 [sys.executable, "-c", "from fgcli.kernels.ops import _warm_group; "
-                 "_warm_group(1)"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 f"_warm_group(1, {fams!r})"], stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL)
         except OSError:  # no second process here: compile everything in this one
             proc = None
     if proc is not None:
         try:
-            _warm_group(0)
+            _warm_group(0, fams)
         finally:
             proc.wait()
-    _warm_group(0)
-    _warm_group(1)  # from the cache the other process wrote (or compiled here if it failed)
+    _warm_group(0, fams)
+    _warm_group(1, fams)  # from the cache the other process wrote (or compiled here if it failed)
     return time.perf_counter() - t0
 
 
