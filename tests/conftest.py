@@ -75,3 +75,20 @@ from hypothesis import settings as _hsettings
 _hsettings.register_profile("fgen", derandomize=True)
 _hsettings.register_profile("explore", derandomize=False)
 _hsettings.load_profile("explore" if _os.environ.get("FGEN_HYPOTHESIS_RANDOM") else "fgen")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _numba_kernels_compiled():
+    """A fresh checkout has no numba cache: compile every kernel once at the start, split
+    between two processes (fgcli.kernels.ops.warm: numba compiles under the GIL, so the
+    tests hitting the kernels one by one would compile them on one core, ~4 of a cold
+    suite's minutes on 2 cores). A warm cache costs a file check."""
+    try:
+        from fgcli.kernels import numba_available
+        from fgcli.kernels.ops import _cache_cold, warm
+    except ImportError:  # no torch / numba here: nothing to compile
+        yield
+        return
+    if numba_available() and _cache_cold():
+        warm()
+    yield
