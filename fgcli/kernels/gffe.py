@@ -655,7 +655,8 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
 def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took, flow,
                         mv_out):
     """reproject_took_kernel, and the hole fill's vectors: flow where took, else mv0 on
-    the valid pixels, else 0."""
+    the valid pixels, else 0. (The proxy test is written out in both kernels: as a shared
+    inlined per-pixel helper the hole-fill stage measured 98 against 57 ms at 1080p.)"""
     h, w = depth.shape
     hs, ws = depth1.shape
     wf = F32(w)

@@ -1009,6 +1009,30 @@ def _layer_ok(layer, shape) -> bool:
             and _boolcpu(v, (1,) + tuple(shape)))
 
 
+def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2):
+    """Both background layers' fragments seen from cam_x, nearest-depth splatted: (source
+    index, depth) of layer 0 at H x W and of layer 1 at h2 x w2 (layer scale sc), and the
+    fragments' positions (px0, py0, px1, py1) for _read_layers_bilinear."""
+    px, py, dn, fok = G._layer_fragments(layers[0], cam_bg, cam_x, (H, W), 1.0, GEOM)
+    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
+    px1, py1, dn1, fok1 = G._layer_fragments(layers[1], cam_bg, cam_x, (H, W), sc, GEOM)
+    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    return s0, d0, s1, d1, (px, py, px1, py1)
+
+
+def _read_layers_bilinear(code, layers, s0, s1, frags, c):
+    """The bilinear layer reads of the pixels the resolve pass marked (code) into c."""
+    from fgcli.kernels.gffe import bg_bilinear_kernel
+
+    l0, l1 = layers
+    px, py, px1, py1 = frags
+    l1v = _u8(l1["valid"])[0]
+    bg_bilinear_kernel(code, s0.numpy(), s1.numpy(), _a(l0["color"]), _a(l0["depth"])[0],
+                       _u8(l0["valid"])[0], px.numpy(), py.numpy(), _a(l1["color"]),
+                       _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
+                       _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
+
+
 def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None):
     """fgcli.ops.gffe.project_background: the layers' geometry (geom kernels), both splats,
     the choice between the layers and the bilinear reads as kernels."""
@@ -1022,13 +1046,10 @@ def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None
         ok = _layer_ok(layers[1], (h2, w2))
     if not ok:
         return G.project_background(layers, cam_bg, cam_x, holes, filter, geom=GEOM)
-    from fgcli.kernels.gffe import bg_bilinear_kernel, bg_resolve_kernel
+    from fgcli.kernels.gffe import bg_resolve_kernel
 
     l0, l1 = layers
-    px, py, dn, fok = G._layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0, GEOM)
-    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
-    px1, py1, dn1, fok1 = G._layer_fragments(l1, cam_bg, cam_x, (H, W), sc, GEOM)
-    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2)
     bil0 = filter == "bilinear"
     bil1 = bil0 and sc == 1.0
     c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
@@ -1038,11 +1059,7 @@ def project_background(layers, cam_bg, cam_x, holes, filter="nearest", geom=None
                       _u8(holes)[0], _a(l0["color"]), _a(l1["color"]), bil0, bil1, c.numpy(),
                       d.numpy()[0], m.numpy(), _u8(filled)[0], code)
     if bil0:
-        l1v = _u8(l1["valid"])[0]
-        bg_bilinear_kernel(code, s0.numpy(), s1.numpy(), _a(l0["color"]), _a(l0["depth"])[0],
-                           _u8(l0["valid"])[0], px.numpy(), py.numpy(), _a(l1["color"]),
-                           _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
-                           _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
+        _read_layers_bilinear(code, layers, s0, s1, frags, c)
     return c, d, m, filled
 
 
@@ -1122,13 +1139,10 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
     if not ok:
         return G.background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter,
                                  color1, depth1, mv1, alpha, entering, emerging, geom=GEOM)
-    from fgcli.kernels.gffe import bg_bilinear_kernel, bg_fill_kernel
+    from fgcli.kernels.gffe import bg_fill_kernel
 
     l0, l1 = layers
-    px, py, dn, fok = G._layer_fragments(l0, cam_bg, cam_x, (H, W), 1.0, GEOM)
-    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
-    px1, py1, dn1, fok1 = G._layer_fragments(l1, cam_bg, cam_x, (H, W), sc, GEOM)
-    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2)
     bil0 = filter == "bilinear"
     bil1 = bil0 and sc == 1.0
     c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
@@ -1143,11 +1157,7 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
                    _u8(valid)[0], c1, e1[0], m1, a, ent, bool(emerging), c.numpy(),
                    d.numpy()[0], m.numpy(), _u8(v)[0], code)
     if bil0:
-        l1v = _u8(l1["valid"])[0]
-        bg_bilinear_kernel(code, s0.numpy(), s1.numpy(), _a(l0["color"]), _a(l0["depth"])[0],
-                           _u8(l0["valid"])[0], px.numpy(), py.numpy(), _a(l1["color"]),
-                           _a(l1["depth"])[0], l1v, _a(px1).reshape(l1v.shape),
-                           _a(py1).reshape(l1v.shape), F32(0.05), c.numpy())
+        _read_layers_bilinear(code, layers, s0, s1, frags, c)
     return c, d, m, v
 
 
@@ -1249,8 +1259,9 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
           and depth.shape == (1, H, W) and depth1.shape == (1, H, W) and _f32cpu(mv)
           and mv.shape == (2, H, W) and _boolcpu(valid, (1, H, W)))
     if not ok:
-        return _fill_holes_ref(color, depth, mv, valid, far_bias, mode, offscreen,
-                               border_splat, color1, depth1, cam1, cam_x, border)
+        return G.fill_holes(color, depth, mv, valid, far_bias, mode, offscreen, border_splat,
+                            color1, depth1, cam1, cam_x, border,
+                            parts=(project_border, push_pull_fill, reproject_fill))
     from fgcli.kernels.gffe import reproject_mv_kernel
 
     c, d = push_pull_fill(color, valid, depth, far_bias)
@@ -1265,24 +1276,6 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
     c, _ = _sample_where(color1, flow, took, base=c)
     holes = torch.tensor(int(vu.size - np.count_nonzero(vu)), dtype=torch.int64)
     return c, d, out, holes
-
-
-def _fill_holes_ref(color, depth, mv, valid, far_bias, mode, offscreen, border_splat,
-                    color1, depth1, cam1, cam_x, border):
-    """fgcli.ops.gffe.fill_holes's composition with this module's ops."""
-    v = valid
-    cams = cam1 is not None and cam_x is not None
-    if border is not None and cams and border_splat:
-        bc, bd, bm, bf = project_border(border, cam1, cam_x, ~v)
-        color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
-        mv, v = torch.where(bf, bm, mv), v | bf
-    c, d = push_pull_fill(color, v, depth, far_bias)
-    out = torch.where(v, mv, torch.zeros_like(mv))
-    if mode == "reproject" and cams:
-        c, flow, took = reproject_fill(c, v, d, color1, depth1, cam1, cam_x,
-                                       offscreen=offscreen, border=border)
-        out = torch.where(took, flow, out)
-    return c, d, out, (~v).sum()
 
 
 def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,

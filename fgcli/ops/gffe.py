@@ -1060,24 +1060,31 @@ def fill_holes(color: torch.Tensor, depth: torch.Tensor, mv: torch.Tensor,
                offscreen: str = "clamp", border_splat: bool = True,
                color1: torch.Tensor | None = None, depth1: torch.Tensor | None = None,
                cam1=None, cam_x=None, border: dict | None = None,
-               geom: Geometry | None = None):
+               geom: Geometry | None = None, parts=None):
     """The hole-fill stage (gffe_hole_fill) as one op: the overscan border's fragments
     first (border_splat, with both cameras), the far-biased push-pull, zero vectors in
     its pixels, then (mode 'reproject', with both cameras) reproject_fill.
 
+    parts: (project_border, push_pull_fill, reproject_fill) to compose instead of this
+    module's (with geom); the numba backend passes its kernel versions.
+
     Returns (color, depth, mv, holes: the number of pixels the push-pull filled, a 0-dim
     int64 tensor)."""
+    import functools
+
+    pb, pp, rf = parts or (functools.partial(project_border, geom=geom), push_pull_fill,
+                           functools.partial(reproject_fill, geom=geom))
     v = valid
     cams = cam1 is not None and cam_x is not None
     if border is not None and cams and border_splat:
-        bc, bd, bm, bf = project_border(border, cam1, cam_x, ~v, geom=geom)
+        bc, bd, bm, bf = pb(border, cam1, cam_x, ~v)
         color, depth = torch.where(bf, bc, color), torch.where(bf, bd, depth)
         mv, v = torch.where(bf, bm, mv), v | bf
-    c, d = push_pull_fill(color, v, depth, far_bias)
+    c, d = pp(color, v, depth, far_bias)
     out = torch.where(v, mv, torch.zeros_like(mv))
     if mode == "reproject" and cams:
-        c, flow, took = reproject_fill(c, v, d, color1, depth1, cam1, cam_x,
-                                       offscreen=offscreen, border=border, geom=geom)
+        c, flow, took = rf(c, v, d, color1, depth1, cam1, cam_x, offscreen=offscreen,
+                           border=border)
         out = torch.where(took, flow, out)
     return c, d, out, (~v).sum()
 
