@@ -523,6 +523,31 @@ def test_interpolate_backend_recorded(tmp_path):
                 assert torch.equal(getattr(a, k), getattr(b, k)), (name, k)
 
 
+def test_wide_vectors_are_set_before_the_first_kernel_is_compiled():
+    """On an AVX-512 host the kernels compile for 512-bit vectors (fgcli.kernels._common):
+    numba fixes its target machine at its first @njit, so the setting must be in the
+    compiler the kernels actually used."""
+    import llvmlite.binding as ll
+    from numba.core.registry import cpu_target
+
+    from fgcli.kernels import _common, splat  # noqa: F401  (compiles nothing by itself)
+
+    feats = getattr(cpu_target.target_context.codegen(), "_tm_features", None)
+    if feats is None:
+        pytest.skip("numba internals moved")
+    assert _common.WIDE_VECTORS == feats.endswith(",-prefer-256-bit")
+    user_choice = os.environ.get("NUMBA_CPU_NAME") or os.environ.get("FGEN_VECTOR_WIDTH")
+    if not user_choice and "+avx512f" in ll.get_host_cpu_features().flatten().split(","):
+        assert _common.WIDE_VECTORS
+    # the opt-out
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")}
+    env["FGEN_VECTOR_WIDTH"] = "256"
+    out = subprocess.run([sys.executable, "-c", "from fgcli.kernels import _common; "
+                          "print(_common.WIDE_VECTORS)"], env=env, capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 def test_any_nonzero_matches_the_reference():
     # frame_facts' motion test: the early-exit kernel against count_nonzero (NaN and -0.0
     # included, non-contiguous views)

@@ -212,8 +212,9 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp,
     bh = max(8, (h + 31) // 32)  # band height
     nband = (h + bh - 1) // bh
     half = bh // 2
-    deferred = np.zeros(h * w, dtype=np.bool_)
+    deferred = np.zeros(h * w, dtype=np.uint8)
     dq = np.empty(h * w, dtype=np.int64)
+    ndef = np.zeros(nband, dtype=np.int64)  # deferred sources per band (one thread each)
     for phase in range(2):
         for bi in prange((nband - phase + 1) // 2):
             band = 2 * np.int64(bi) + phase
@@ -250,13 +251,16 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp,
                         if ks[x] < buf[q]:
                             buf[q] = ks[x]
                     else:
-                        deferred[y * w + x] = True
+                        deferred[y * w + x] = 1
                         dq[y * w + x] = q
+                        ndef[band] += 1
     for py in prange(h):
         y = np.int64(py)
+        if ndef[y // bh] == 0:  # usually every band: no row to scan
+            continue
         for x in range(w):
             i = y * w + x
-            if deferred[i]:
+            if deferred[i] != 0:
                 atomic_min_i64(buf, dq[i],
                                (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x)
     w2 = w + 2

@@ -298,7 +298,7 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     return _splat_frame(depth1, mv1, mv0, a, model, mode, depth0, tol)
 
 
-def generated_mv(result: SplatResult) -> torch.Tensor:
+def generated_mv(result: SplatResult, copy: bool = True) -> torch.Tensor:
     """Motion vectors of the generated frame, in fgen's convention (toward the past).
 
     * interp (time alpha): vectors toward time 0 (the older rendered frame), ``to0``:
@@ -307,8 +307,10 @@ def generated_mv(result: SplatResult) -> torch.Tensor:
       in [0, alpha] are approximately ``to0 * (alpha - t) / alpha`` under linear motion.)
     * extrap (time 1 + alpha): vectors toward frame 1 (the previous output frame), ``to1``.
 
-    Returns a (2, H, W) [or (B, 2, H, W)] tensor (a copy).
+    Returns a (2, H, W) [or (B, 2, H, W)] tensor: a copy, or with ``copy=False`` the
+    result's own field (for callers that never modify it in place).
     """
     if not isinstance(result, SplatResult):
         raise TypeError(f"result: expected a SplatResult, got {type(result).__name__}")
-    return (result.to0 if result.mode == "interp" else result.to1).clone()
+    mv = result.to0 if result.mode == "interp" else result.to1
+    return mv.clone() if copy else mv

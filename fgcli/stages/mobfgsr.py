@@ -14,7 +14,9 @@ class _HoleStage(Stage):
         valid = ctx["motion"].valid
         if not reads_back(valid):  # GPU: runs (dense, cheap) rather than read a value back
             return True, ""
-        if not bool((~valid).any().item()):
+        # numpy's all() stops at the first hole (torch's reduction reads the whole mask:
+        # 1.1-1.3 ms per 1080p frame)
+        if bool(valid.numpy().all()):
             return False, "no holes left in the splatted motion"
         return True, ""
 
@@ -250,7 +252,7 @@ class MotionOut(Stage):
         m = ctx["motion"]
         a = ctx["alpha"]
         prev = float(ctx.get("prev_time") or 0.0)
-        mv = generated_mv(m)
+        mv = generated_mv(m, copy=False)  # stage outputs are never modified in place
         if a > 0 and prev > 0:
             mv = mv * ((a - prev) / a)
         return {"mv": mv}
