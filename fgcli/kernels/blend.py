@@ -119,14 +119,13 @@ def _similar(c0, c1, ys, x, tb, table, base):
 
 
 @njit(**INLINE)
-def _out_px(c0, c1, ys, x, y, wt, endpoint, out_c):
-    """The lerp (or the endpoint frame) into out_c[:, y, x]."""
-    for k in range(3):
-        u = sval_b(c0[k, ys, x])
-        v = sval_b(c1[k, ys, x])
-        r = _lerp_b(u, v, wt)
-        r = u if endpoint == 1 else r
-        out_c[k, y, x] = v if endpoint == 2 else r
+def _out_px(c0, c1, k, ys, x, y, wt, endpoint, out_c):
+    """The lerp (or the endpoint frame) into out_c[k, y, x]."""
+    u = sval_b(c0[k, ys, x])
+    v = sval_b(c1[k, ys, x])
+    r = _lerp_b(u, v, wt)
+    r = u if endpoint == 1 else r
+    out_c[k, y, x] = v if endpoint == 2 else r
 
 
 @njit(**KERNEL)
@@ -137,7 +136,7 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
 
     Per row, three passes over x: every case but the brightness test (vectorised), the
     brightness test for the pixels that need it (scalar: six table lookups each), the
-    lerp and the outputs (vectorised)."""
+    lerp and the outputs (vectorised, one colour plane after the other)."""
     h, w = d0.shape
     nch = min(h, 64)
     for ch in prange(nch):
@@ -153,8 +152,10 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
             for x in range(w):
                 if need[x] and _similar(c0, c1, y, x, tb, table, base):
                     wts[x] = near_w
-            for x in range(w):
-                _out_px(c0, c1, y, x, y, wts[x], endpoint, out_c)
+            # one plane at a time: a pixel loop writing all three planes ran 3-6x slower
+            for k in range(3):
+                for x in range(w):
+                    _out_px(c0, c1, k, y, x, y, wts[x], endpoint, out_c)
 
 
 @njit(**KERNEL)

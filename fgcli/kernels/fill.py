@@ -96,23 +96,39 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                     off[nf] = best
                     fxs[nf] = x
                     nf += 1
-            # every pixel as if it kept its own values (contiguous loads, vectorised) ...
+            # every pixel as if it kept its own values (contiguous, vectorised; one output
+            # plane per loop: one loop writing all of them ran ~1.2x slower) ...
+            for x in range(w):
+                o_to1[0, y, x] = to1[0, y, x]
+            for x in range(w):
+                o_to1[1, y, x] = to1[1, y, x]
+            for x in range(w):
+                o_to0[0, y, x] = to0[0, y, x]
+            for x in range(w):
+                o_to0[1, y, x] = to0[1, y, x]
+            for x in range(w):
+                o_source[y, x] = source[y, x]
             for x in range(w):
                 v = valid[y, x]
-                hole_fb = (not v) & has_fb
-                mx = smv_b(fb[0, y, x])
-                my = smv_b(fb[1, y, x])
-                o_to1[0, y, x] = mx * c1 if hole_fb else to1[0, y, x]
-                o_to1[1, y, x] = my * c1 if hole_fb else to1[1, y, x]
-                o_to0[0, y, x] = mx * c0 if hole_fb else to0[0, y, x]
-                o_to0[1, y, x] = my * c0 if hole_fb else to0[1, y, x]
-                dd = sdepth_b(depth[y, x]) if v else INF
-                o_depth[y, x] = sdepth_b(fbd[y, x]) if (hole_fb & has_fbd) else dd
-                o_source[y, x] = source[y, x]
+                o_depth[y, x] = sdepth_b(depth[y, x]) if v else INF
                 o_filled[y, x] = False
                 o_valid[y, x] = v
                 o_holes[y, x] = not v
-            # ... then the few filled ones take their neighbour's
+            # ... the holes the fallback fields cover (scalar, usually few) ...
+            if has_fb:
+                for x in range(w):
+                    if valid[y, x]:
+                        continue
+                    mx = smv_b(fb[0, y, x])
+                    my = smv_b(fb[1, y, x])
+                    o_to1[0, y, x] = mx * c1
+                    o_to1[1, y, x] = my * c1
+                    o_to0[0, y, x] = mx * c0
+                    o_to0[1, y, x] = my * c0
+                    if has_fbd:
+                        o_depth[y, x] = sdepth_b(fbd[y, x])
+            # ... then the few filled ones take their neighbour's (after the fallback, as the
+            # reference)
             for i in range(nf):
                 x = fxs[i]
                 sy = y + DY9[off[i]]
