@@ -223,3 +223,28 @@ def test_factor_on_a_full_rate_render_matches_a_half_rate_render(tmp_path):
         # disocclusions and silhouettes (a few % of pixels) are where chaining cannot know
         assert (err < 0.05).float().mean() > 0.97, n
         assert err.median() < 0.01
+
+
+def test_gap_fill_is_not_skipped_when_cracks_remain_without_holes():
+    """Gap fill also refines valid pixels (a background sample showing through a crack in
+    a nearer surface), so a splat without holes does not make it a no-op: where it would
+    change the motion, the stage must run (a skipped stage's outputs must be exact)."""
+    from fgcli.ops import SplatResult, gap_fill
+    from fgcli.stages.base import get_stage
+
+    h, w = 9, 9
+    depth = torch.ones(1, h, w)
+    depth[0, 4, 4] = 10.0  # one far sample inside a near surface, every pixel valid
+    to1 = torch.full((2, h, w), -0.25)
+    to1[:, 4, 4] = -3.0
+    r = SplatResult(to1=to1, to0=-to1, depth=depth, valid=torch.ones(1, h, w, dtype=torch.bool),
+                    source=torch.arange(h * w, dtype=torch.int32).view(1, h, w), alpha=0.5,
+                    mode="interp")
+    assert bool(gap_fill(r).filled[0, 4, 4])  # the crack is refined ...
+    z = torch.zeros(2, h, w)
+    ctx = {"motion": r, "mode": "interp", "alpha": 0.5, "mv0": z, "mv1": z + 1.0,
+           "depth0": depth, "depth1": depth}
+    stage = get_stage("gap_fill")()
+    need, _ = stage.needed(ctx, {"any_motion": True, "history_motion": False})
+    out = stage.run(ctx)["motion"] if need else stage.skip(ctx)["motion"]
+    assert torch.equal(out.to1, gap_fill(r).to1)  # ... so the stage runs

@@ -124,6 +124,16 @@ class GapFill(_HoleStage):
                choices=("prev_mv", "none")),
     )
 
+    def needed(self, ctx, facts):
+        # The refinement also rewrites valid pixels: a background sample showing through a
+        # crack in a nearer surface. So "no holes" alone does not make it a no-op. Without
+        # motion the splat is skipped (the identity), and so is the fill: every vector is
+        # zero, so the fill could only relabel a far pixel's depth and source, and the
+        # output frame is the input either way (tests/test_pipeline.py).
+        if facts.get("any_motion", True) or facts.get("history_motion", False):
+            return True, ""
+        return super().needed(ctx, facts)
+
     def run(self, ctx):
         from fgcli.kernels import op
 
