@@ -265,3 +265,14 @@ def test_facts_read_back_once_on_the_dense_path(tiny_scene):
     nan["mv1"] = torch.where(torch.isnan(nan["mv1"]), nan["mv1"], torch.zeros_like(nan["mv1"]))
     with dense():
         assert frame_facts(nan)["any_motion"] is True  # NaN counts as motion
+
+
+def test_all_set_and_any_set_read_back_as_torch_does():
+    g = torch.Generator().manual_seed(3)
+    masks = [torch.ones(1, 6, 7, dtype=torch.bool), torch.zeros(1, 6, 7, dtype=torch.bool),
+             torch.rand(1, 6, 7, generator=g) > 0.02, torch.rand(1, 6, 7, generator=g) > 0.98,
+             (torch.rand(2, 9, 8, generator=g) > 0.5)[:, ::2, 1::3],  # not contiguous
+             torch.zeros(0, dtype=torch.bool), torch.rand(1, 4, 4, generator=g)]  # float
+    masks[0][0, 5, 6] = False  # the only hole is the last element
+    for m in masks:
+        assert _util.all_set(m) == bool(m.all()) and _util.any_set(m) == bool(m.any())

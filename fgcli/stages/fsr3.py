@@ -96,9 +96,9 @@ class FSR3FieldFill(Stage):
 
     def run(self, ctx):
         from fgcli.kernels import op
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import all_set, reads_back
         vec, prio, valid = op("unpack_vector_field", ctx)(ctx["game_field"])
-        if reads_back(valid) and bool(valid.all()):  # (the GPU fills: no holes, no change)
+        if reads_back(valid) and all_set(valid):  # (the GPU fills: no holes, no change)
             return {"game_mv": vec, "game_holes": ~valid}
         out, _ = op("fill_vector_field", ctx)(vec, prio, valid)
         return {"game_mv": out, "game_holes": ~valid}
@@ -130,7 +130,7 @@ class FSR3OpticalFlow(Stage):
     )
 
     def run(self, ctx):
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import all_set, reads_back
         from fgcli.kernels import op
         from fgcli.ops.fsr3 import dis_flow, luma8, magnitude_priority, upsample_block_flow
 
@@ -164,7 +164,7 @@ class FSR3OpticalFlow(Stage):
             f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
         vec, prio, valid = op("unpack_vector_field", ctx)(field)
-        if not reads_back(valid) or not bool(valid.all()):
+        if not reads_back(valid) or not all_set(valid):
             vec, _ = op("fill_vector_field", ctx)(vec, prio, valid)
         return {"of_mv": vec}
 
@@ -256,9 +256,9 @@ class FSR3Inpaint(Stage):
                       range=(1.0, 64.0)),)
 
     def needed(self, ctx, facts):
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import any_set, reads_back
 
-        if reads_back(ctx["fsr3_holes"]) and not bool(ctx["fsr3_holes"].any()):
+        if reads_back(ctx["fsr3_holes"]) and not any_set(ctx["fsr3_holes"]):
             return False, "no holes"
         return True, ""
 

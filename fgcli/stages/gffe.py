@@ -206,14 +206,14 @@ class GffePosition(Stage):
     def needed(self, ctx, facts):
         if ctx.get("traj") is None:
             return False, "every pixel static: positions are the unprojected depth"
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import any_set, reads_back
 
         t = ctx["traj"]
         if not reads_back(t):  # GPU: computed (same values) rather than read back
             return True, ""
         if self.dilate == "full" and facts.get("camera_moved", True):
             return True, ""
-        if not bool(ctx["dynamic"].any()) and torch_equal(t[0], t[1]):
+        if not any_set(ctx["dynamic"]) and torch_equal(t[0], t[1]):
             return False, "no dynamic pixels: positions are the unprojected depth"
         return True, ""
 
@@ -342,9 +342,9 @@ class _HoleStage(Stage):
     without holes; skipped, it passes its outputs through."""
 
     def needed(self, ctx, facts):
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import all_set, reads_back
 
-        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
+        if reads_back(ctx["valid"]) and all_set(ctx["valid"]):
             return False, "no holes in the warped frame"
         return True, ""
 
@@ -435,9 +435,9 @@ class GffeHoleFill(Stage):
     uses_kernels = True
 
     def needed(self, ctx, facts):
-        from fgcli.ops._util import reads_back
+        from fgcli.ops._util import all_set, reads_back
 
-        if reads_back(ctx["valid"]) and bool(ctx["valid"].all()):
+        if reads_back(ctx["valid"]) and all_set(ctx["valid"]):
             return False, "no holes left"
         return True, ""
 
