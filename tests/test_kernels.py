@@ -170,6 +170,29 @@ def test_splat_gap_fill_and_extrap_fill(name, f):
                             R.fill_extrap_holes(g, f["mv1"], dd, thr))
 
 
+def test_gap_fill_on_crack_fields():
+    """The 2x2-block rule on fields full of cracks and holes: two depth layers at random
+    (every 3x3 pattern of nearer / farther / empty occurs), sky, NaN and zero depths, edge
+    pixels; the kernel decides every pixel with selects and picks candidates in a second
+    pass, the reference per pixel."""
+    g = torch.Generator().manual_seed(11)
+    for h, w in ((7, 9), (33, 40)):
+        near = torch.rand(1, h, w, generator=g) < 0.5
+        depth = torch.where(near, 1.0 + torch.rand(1, h, w, generator=g) * 0.005,
+                            5.0 + torch.rand(1, h, w, generator=g))
+        depth[0, 0, 1], depth[0, 2, 3], depth[0, -1, -1] = INF, NAN, 0.0
+        valid = torch.rand(1, h, w, generator=g) < 0.7
+        to1 = torch.randn(2, h, w, generator=g)
+        r = R.SplatResult(to1=to1, to0=-to1 * 0.5, depth=depth, valid=valid,
+                          source=torch.arange(h * w, dtype=torch.int32).view(1, h, w),
+                          alpha=0.5, mode="interp")
+        fb = torch.randn(2, h, w, generator=g)
+        for thr in (0.0, 0.01, 0.5, 1.0):
+            same_result(f"{h}x{w} thr {thr}", K.gap_fill(r, thr), R.gap_fill(r, thr))
+            same_result(f"{h}x{w} thr {thr} fb", K.gap_fill(r, thr, "nearest", fb, depth),
+                        R.gap_fill(r, thr, "nearest", fb, depth))
+
+
 def test_fallbacks_to_the_reference():
     """Variants without a kernel run the reference (same results by construction)."""
     f = CASES[0][1]

@@ -8,10 +8,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, smv_b
 
-# 3x3 neighbours, row-major, centre excluded (fgcli.ops.fill._NEIGH)
-NDY = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
-NDX = np.array([-1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
-# the same with the centre (index 4)
+# 3x3 neighbours, row-major, centre included (index 4)
 DY9 = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1], dtype=np.int64)
 DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
 
@@ -29,73 +26,77 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
     float32 factor (1 - threshold); fb (2, H, W) / fbd (H, W) fallback fields (used when
     has_fb / has_fbd); c1, c0 the fallback coefficients. Writes the o_* arrays.
 
-    Per row: the 3x3 minimum test (vectorised, from a rolling 3-row buffer of padded
-    depths), the 2x2-block candidate rule for the few suspicious pixels (scalar), the
-    outputs as if no pixel were filled (contiguous, vectorised), then the filled pixels'
-    neighbour values (scalar, few)."""
+    Per row: the 2x2-block candidate rule for every pixel (vectorised selects over a
+    rolling 3-row buffer of padded depths), the nearest candidate of the few pixels that
+    take one (scalar), the outputs as if no pixel were filled (contiguous, vectorised),
+    then the filled pixels' neighbour values (scalar, few)."""
     h, w = depth.shape
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
         yb = (np.int64(ch) + 1) * h // nch
         D = np.empty((3, w + 2), dtype=np.float32)
-        V = np.empty((3, w + 2), dtype=np.bool_)
-        susp = np.empty(w, dtype=np.bool_)
+        V = np.empty((3, w + 2), dtype=np.uint8)  # (a bool buffer stops vectorisation)
+        fill = np.empty(w, dtype=np.uint8)
         off = np.empty(w, dtype=np.int64)  # chosen neighbour (0..8 row-major) of fxs[i]
         fxs = np.empty(w, dtype=np.int64)
-        cand = np.zeros(9, dtype=np.bool_)
-        dn = np.empty(9, dtype=np.float32)
         for r in range(ya - 1, yb + 1):
             # row r of the gap-fill depth (+inf at holes) and of valid into slot r % 3,
-            # padded with +inf / False (rows outside the image: all pads)
+            # padded with +inf / 0 (rows outside the image: all pads)
             sl = (r + 3) % 3
             D[sl, 0] = INF
-            V[sl, 0] = False
+            V[sl, 0] = 0
             D[sl, w + 1] = INF
-            V[sl, w + 1] = False
+            V[sl, w + 1] = 0
             rin = (r >= 0) & (r < h)
             rr = min(max(r, 0), h - 1)
             for x in range(w):
                 vv = valid[rr, x] & rin
                 D[sl, x + 1] = sdepth_b(depth[rr, x]) if vv else INF
-                V[sl, x + 1] = vv
+                V[sl, x + 1] = np.uint8(1) if vv else np.uint8(0)
             if r < ya + 1:
                 continue
             y = r - 1
             sa = (y + 2) % 3  # row y - 1
             sb = y % 3
             sc = (y + 1) % 3
+            # the 2x2-block rule for every pixel, as selects (vectorised): the candidates
+            # are the valid neighbours nearer than the limit (every valid one around a
+            # hole); a pixel is kept when one of its four 2x2 blocks holds none
             for x in range(w):
-                dc = D[sb, x + 1]
-                m = min(min(min(D[sa, x], D[sa, x + 1]), min(D[sa, x + 2], D[sb, x])),
-                        min(min(D[sb, x + 2], D[sc, x]), min(D[sc, x + 1], D[sc, x + 2])))
-                m = min(m, dc)
-                susp[x] = (not V[sb, x + 1]) | (m < dc * f1)
-            nf = 0  # filled pixels of this row (their x in fx[:nf])
+                limit = D[sb, x + 1] * f1
+                hc = V[sb, x + 1] == 0
+                n0 = (V[sa, x] != 0) & ((D[sa, x] < limit) | hc)
+                n1 = (V[sa, x + 1] != 0) & ((D[sa, x + 1] < limit) | hc)
+                n2 = (V[sa, x + 2] != 0) & ((D[sa, x + 2] < limit) | hc)
+                n3 = (V[sb, x] != 0) & ((D[sb, x] < limit) | hc)
+                n5 = (V[sb, x + 2] != 0) & ((D[sb, x + 2] < limit) | hc)
+                n6 = (V[sc, x] != 0) & ((D[sc, x] < limit) | hc)
+                n7 = (V[sc, x + 1] != 0) & ((D[sc, x + 1] < limit) | hc)
+                n8 = (V[sc, x + 2] != 0) & ((D[sc, x + 2] < limit) | hc)
+                keep = ((not n0) & (not n1) & (not n3)) | ((not n1) & (not n2) & (not n5)) | \
+                    ((not n3) & (not n6) & (not n7)) | ((not n5) & (not n7) & (not n8))
+                fill[x] = np.uint8(0) if keep else np.uint8(1)
+            # the nearest candidate of the few pixels that take one (scalar; ties to the
+            # first in row-major order)
+            nf = 0  # filled pixels of this row (their x in fxs[:nf])
             for x in range(w):
-                if not susp[x]:
+                if fill[x] == 0:
                     continue
-                dc = D[sb, x + 1]
-                hc = not V[sb, x + 1]
-                limit = dc * f1
+                limit = D[sb, x + 1] * f1
+                hc = V[sb, x + 1] == 0
+                best = -1
+                bd = INF
                 for k in range(9):
                     s = sa if k < 3 else (sb if k < 6 else sc)
                     j = x + 1 + DX9[k]
-                    dn[k] = D[s, j]
-                    cand[k] = V[s, j] and (D[s, j] < limit or hc)
-                cand[4] = False
-                keep = ((not cand[0]) and (not cand[1]) and (not cand[3])) or \
-                       ((not cand[1]) and (not cand[2]) and (not cand[5])) or \
-                       ((not cand[3]) and (not cand[6]) and (not cand[7])) or \
-                       ((not cand[5]) and (not cand[7]) and (not cand[8]))
-                if not keep:
-                    best = -1
-                    for k in range(9):
-                        if cand[k] and (best < 0 or dn[k] < dn[best]):
-                            best = k
-                    off[nf] = best
-                    fxs[nf] = x
-                    nf += 1
+                    dk = D[s, j]
+                    if k != 4 and V[s, j] != 0 and (dk < limit or hc) and (best < 0 or dk < bd):
+                        best = k
+                        bd = dk
+                off[nf] = best
+                fxs[nf] = x
+                nf += 1
             # every pixel as if it kept its own values (contiguous, vectorised; one output
             # plane per loop: one loop writing all of them ran ~1.2x slower) ...
             for x in range(w):
