@@ -306,7 +306,7 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
 
 
 @pytest.mark.parametrize("h,w,levels,block,search,median", [
-    (72, 128, 7, 8, 8, True),     # FSR 3's settings (the unrolled 8x8 SAD)
+    (72, 128, 7, 8, 8, True),     # FSR 3's settings (sixteen offsets at a time)
     (37, 53, 3, 8, 8, False),     # partial blocks at the right and bottom edges
     (50, 70, 4, 5, 3, True),      # other block and search sizes (the generic loop)
     (1, 1, 7, 8, 8, True),        # one pixel
@@ -323,7 +323,11 @@ def test_block_flow(h, w, levels, block, search, median):
     l0 = base[:, 10:10 + h, 10:10 + w].round()
     l1 = (base[:, 13:13 + h, 4:4 + w] + torch.randint(-4, 5, (1, h, w), generator=g)).clamp(0, 255)
     l1[:, : h // 3, : w // 3] = 128.0  # a flat region: every offset ties
-    for a, b in ((l0, l1.round()), (l0, l0), (torch.zeros_like(l0), torch.full_like(l0, 255.0))):
+    # stripes of period 2 shifted by one: offsets -1 and +1 give the same SAD at the same
+    # distance, so the tie rule (first offset in (dy, dx) order) decides
+    stripes = (torch.arange(w) % 2 * 255.0).expand(1, h, w).contiguous()
+    for a, b in ((l0, l1.round()), (l0, l0), (torch.zeros_like(l0), torch.full_like(l0, 255.0)),
+                 (stripes, stripes.roll(1, -1))):
         ref = fsr3.block_flow(a, b, levels, block, search, median)
         assert torch.equal(K.block_flow(a, b, levels, block, search, median), ref)
     # the sub-pixel option runs the reference's refinement after the kernel's search
