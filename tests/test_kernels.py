@@ -16,6 +16,7 @@ within 1e-5 of t_b may pick the other case of Eq. 1; such pixels are excluded.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -191,6 +192,61 @@ def test_gap_fill_on_crack_fields():
             same_result(f"{h}x{w} thr {thr}", K.gap_fill(r, thr), R.gap_fill(r, thr))
             same_result(f"{h}x{w} thr {thr} fb", K.gap_fill(r, thr, "nearest", fb, depth),
                         R.gap_fill(r, thr, "nearest", fb, depth))
+
+
+@pytest.mark.parametrize("name,f", CASES[:3], ids=IDS[:3])
+def test_splat_without_offsets_toward_frame0(name, f):
+    """splat_motion(toward0=False) (extrapolation: no stage samples frame 0) leaves to0
+    out and changes nothing else, through gap_fill and fill_extrap_holes; the kernels
+    (which then neither write nor copy it) agree with the reference, and so does the
+    reference's dense (GPU) path."""
+    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
+    for mode, a, mv0 in (("extrap", 0.5, None), ("extrap", 2.0, f["mv0"]), ("interp", 0.3, f["mv0"])):
+        full = R.splat_motion(dd, mm, mv0, a, mode=mode)
+        part = R.splat_motion(dd, mm, mv0, a, mode=mode, toward0=False)
+        assert part.to0 is None
+        same_result(f"{mode} kernel splat", K.splat_motion(dd, mm, mv0, a, mode=mode,
+                                                          toward0=False), part)
+        stages = [("gap_fill", lambda r: R.gap_fill(r, 0.01), lambda r: K.gap_fill(r, 0.01)),
+                  ("gap_fill mean", lambda r: R.gap_fill(r, 0.01, "mean"), None),
+                  ("gap_fill fallback", lambda r: R.gap_fill(r, 0.01, "nearest", f["mv0"], f["d0"]),
+                   lambda r: K.gap_fill(r, 0.01, "nearest", f["mv0"], f["d0"]))]
+        for label, ref, ker in stages:
+            g_full, g_part = ref(full), ref(part)
+            assert g_part.to0 is None
+            same_result(f"{mode} {label}", g_part, g_full.replace(to0=None))
+            if ker is not None:
+                same_result(f"{mode} {label} kernel", ker(part), g_part)
+            with _dense():
+                same_result(f"{mode} {label} dense", ref(part), g_part)
+        if mode == "extrap":
+            g_full, g_part = R.gap_fill(full), R.gap_fill(part)
+            e_full = R.fill_extrap_holes(g_full, f["mv1"], dd)
+            e_part = R.fill_extrap_holes(g_part, f["mv1"], dd)
+            same_result("extrap_fill", e_part, e_full.replace(to0=None))
+            same_result("extrap_fill kernel", K.fill_extrap_holes(g_part, f["mv1"], dd), e_part)
+            with _dense():
+                same_result("extrap_fill dense", R.fill_extrap_holes(g_part, f["mv1"], dd),
+                            e_part)
+        else:
+            with pytest.raises(ValueError, match="to0"):
+                R.generated_mv(part)
+    # batched
+    b = R.splat_motion(torch.stack([dd, dd]), torch.stack([mm, mm]), None, 0.5, mode="extrap",
+                       toward0=False)
+    assert b.to0 is None and R.gap_fill(b).to0 is None
+
+
+@contextlib.contextmanager
+def _dense():
+    from fgcli.ops import _util
+
+    old = _util.FORCE_DENSE
+    _util.FORCE_DENSE = True
+    try:
+        yield
+    finally:
+        _util.FORCE_DENSE = old
 
 
 def test_fallbacks_to_the_reference():
@@ -557,7 +613,7 @@ def test_wide_vectors_are_set_before_the_first_kernel_is_compiled():
     import llvmlite.binding as ll
     from numba.core.registry import cpu_target
 
-    from fgcli.kernels import _common, splat  # noqa: F401  (compiles nothing by itself)
+    from fgcli.kernels import _common
 
     feats = getattr(cpu_target.target_context.codegen(), "_tm_features", None)
     if feats is None:

@@ -20,11 +20,12 @@ def _d(depth, valid, y, x):
 
 
 @njit(**KERNEL)
-def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd, c1, c0,
-                    o_to1, o_to0, o_depth, o_valid, o_source, o_filled, o_holes):
-    """to1/to0 (2, H, W), depth (H, W), valid (H, W) bool, source (H, W) int32; f1 = the
-    float32 factor (1 - threshold); fb (2, H, W) / fbd (H, W) fallback fields (used when
-    has_fb / has_fbd); c1, c0 the fallback coefficients. Writes the o_* arrays.
+def gap_fill_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd, c1,
+                    c0, o_to1, o_to0, o_depth, o_valid, o_source, o_filled, o_holes):
+    """to1/to0 (2, H, W) (to0 and o_to0 only read and written when has0), depth (H, W),
+    valid (H, W) bool, source (H, W) int32; f1 = the float32 factor (1 - threshold);
+    fb (2, H, W) / fbd (H, W) fallback fields (used when has_fb / has_fbd); c1, c0 the
+    fallback coefficients. Writes the o_* arrays.
 
     Per row: the 2x2-block candidate rule for every pixel (vectorised selects over a
     rolling 3-row buffer of padded depths), the nearest candidate of the few pixels that
@@ -103,10 +104,11 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                 o_to1[0, y, x] = to1[0, y, x]
             for x in range(w):
                 o_to1[1, y, x] = to1[1, y, x]
-            for x in range(w):
-                o_to0[0, y, x] = to0[0, y, x]
-            for x in range(w):
-                o_to0[1, y, x] = to0[1, y, x]
+            if has0:
+                for x in range(w):
+                    o_to0[0, y, x] = to0[0, y, x]
+                for x in range(w):
+                    o_to0[1, y, x] = to0[1, y, x]
             for x in range(w):
                 o_source[y, x] = source[y, x]
             for x in range(w):
@@ -124,8 +126,9 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                     my = smv_b(fb[1, y, x])
                     o_to1[0, y, x] = mx * c1
                     o_to1[1, y, x] = my * c1
-                    o_to0[0, y, x] = mx * c0
-                    o_to0[1, y, x] = my * c0
+                    if has0:
+                        o_to0[0, y, x] = mx * c0
+                        o_to0[1, y, x] = my * c0
                     if has_fbd:
                         o_depth[y, x] = sdepth_b(fbd[y, x])
             # ... then the few filled ones take their neighbour's (after the fallback, as the
@@ -136,8 +139,9 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
                 sx = x + DX9[off[i]]
                 o_to1[0, y, x] = to1[0, sy, sx]
                 o_to1[1, y, x] = to1[1, sy, sx]
-                o_to0[0, y, x] = to0[0, sy, sx]
-                o_to0[1, y, x] = to0[1, sy, sx]
+                if has0:
+                    o_to0[0, y, x] = to0[0, sy, sx]
+                    o_to0[1, y, x] = to0[1, sy, sx]
                 o_depth[y, x] = _d(depth, valid, sy, sx)
                 o_source[y, x] = source[sy, sx]
                 o_filled[y, x] = True
@@ -146,10 +150,10 @@ def gap_fill_kernel(to1, to0, depth, valid, source, f1, fb, fbd, has_fb, has_fbd
 
 
 @njit(**KERNEL)
-def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
+def extrap_fill_kernel(mv1, depth1, to1, to0, has0, valid, depth_t, alpha, f1,
                        o_to1, o_to0, o_depth, o_holes):
     """fill_extrap_holes: holes (valid False) take alpha * mv1(q) when frame 1's depth at
-    the pixel nearest q + alpha * mv1(q) is background (else zero motion), and
+    the pixel nearest q + alpha * mv1(q) is background (else zero motion), and, when has0,
     to0 = to1 + mv1(nearest q + to1).
 
     Per row: every pixel as if it were valid (contiguous copies, vectorised), then the
@@ -164,10 +168,12 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
             ok = valid[y, x]
             o_to1[0, y, x] = to1[0, y, x]
             o_to1[1, y, x] = to1[1, y, x]
-            o_to0[0, y, x] = to0[0, y, x]
-            o_to0[1, y, x] = to0[1, y, x]
             o_depth[y, x] = sdepth_b(depth_t[y, x])
             o_holes[y, x] = not ok
+        if has0:
+            for x in range(w):
+                o_to0[0, y, x] = to0[0, y, x]
+                o_to0[1, y, x] = to0[1, y, x]
         for x in range(w):
             if valid[y, x]:
                 continue
@@ -185,10 +191,11 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, valid, depth_t, alpha, f1,
             bg = inside & (not (ds < do * f1))
             vx = mx if bg else F32(0.0)
             vy = my if bg else F32(0.0)
-            jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
-            jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
             o_to1[0, y, x] = vx
             o_to1[1, y, x] = vy
-            o_to0[0, y, x] = vx + smv_b(mv1[0, jy, jx])
-            o_to0[1, y, x] = vy + smv_b(mv1[1, jy, jx])
             o_depth[y, x] = ds if bg else do
+            if has0:
+                jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
+                jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
+                o_to0[0, y, x] = vx + smv_b(mv1[0, jy, jx])
+                o_to0[1, y, x] = vy + smv_b(mv1[1, jy, jx])

@@ -70,30 +70,34 @@ def dilate_nearest_depth(depth, mv, radius: int = 1):
 
 
 def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", depth0=None,
-                 depth0_tol_rel=0.05):
+                 depth0_tol_rel=0.05, toward0=True):
     if not _cpu(depth1, mv1, mv0, depth0):
-        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel)
+        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel,
+                              toward0)
     depth1, mv1, mv0, depth0, tol, a = R.splat.splat_args(depth1, mv1, mv0, alpha, model,
                                                           mode, depth0, depth0_tol_rel)
     h, w = depth1.shape[-2:]
     if (h + 2) * (w + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
     if h >= 65536 or w >= 65536:  # the kernel packs sources as y << 16 | x
-        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel)
+        return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel,
+                              toward0)
     from fgcli.kernels.splat import splat_kernel
 
     ca, cb = R.motion_coefficients(a, model if mv0 is not None else "linear", mode)
     quad = cb != 0.0
     use_d0 = quad and depth0 is not None
-    to1, to0, dt = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    w0 = bool(toward0)
+    to1, dt = _empty(2, h, w), _empty(1, h, w)
+    to0 = _empty(2, h, w) if w0 else None
     valid = _empty(1, h, w, dtype=torch.bool)
     source = _empty(1, h, w, dtype=torch.int32)
     buf = np.empty((h + 2) * (w + 2), dtype=np.int64)
-    disp = _empty(2, h, w) if quad else to0  # (linear: unused)
+    disp = _empty(2, h, w).numpy() if quad else _DUMMY3  # (linear: unused)
     splat_kernel(_a(depth1)[0], _a(mv1), _a(mv0) if quad else _DUMMY3,
                  _a(depth0)[0] if use_d0 else _a(depth1)[0], F32(ca), F32(cb), quad, use_d0,
-                 F32(tol), buf, disp.numpy(), to1.numpy(), to0.numpy(), dt.numpy()[0], valid.numpy()[0],
-                 source.numpy()[0])
+                 F32(tol), w0, buf, disp, to1.numpy(), to0.numpy() if w0 else _DUMMY3,
+                 dt.numpy()[0], valid.numpy()[0], source.numpy()[0])
     return R.SplatResult(to1=to1, to0=to0, depth=dt, valid=valid, source=source,
                          alpha=float(a), mode=mode)
 
@@ -113,16 +117,20 @@ def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
     h, w = result.depth.shape[-2:]
     a = result.alpha
     c1, c0 = (-(1.0 - a), a) if result.mode == "interp" else (a, 1.0 + a)
-    to1, to0, dep = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    has0 = result.to0 is not None
+    to1, dep = _empty(2, h, w), _empty(1, h, w)
+    to0 = _empty(2, h, w) if has0 else None
     valid, filled, holes = (_empty(1, h, w, dtype=torch.bool) for _ in range(3))
     source = _empty(1, h, w, dtype=torch.int32)
     has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
-    gap_fill_kernel(_a(result.to1), _a(result.to0), _a(result.depth)[0], _a(result.valid)[0],
-                    _a(result.source)[0], F32(1.0 - thr),
+    gap_fill_kernel(_a(result.to1), _a(result.to0) if has0 else _DUMMY3, has0,
+                    _a(result.depth)[0], _a(result.valid)[0], _a(result.source)[0],
+                    F32(1.0 - thr),
                     # unused fields: same-shape stand-ins (the kernel may read them)
                     _a(fallback_mv) if has_fb else _a(result.to1),
                     _a(fallback_depth)[0] if has_fbd else _a(result.depth)[0], has_fb, has_fbd,
-                    F32(c1), F32(c0), to1.numpy(), to0.numpy(), dep.numpy()[0],
+                    F32(c1), F32(c0), to1.numpy(), to0.numpy() if has0 else _DUMMY3,
+                    dep.numpy()[0],
                     valid.numpy()[0], source.numpy()[0], filled.numpy()[0], holes.numpy()[0])
     return result.replace(to1=to1, to0=to0, depth=dep, valid=valid, source=source,
                           filled=filled, holes=holes)
@@ -140,11 +148,14 @@ def fill_extrap_holes(result, mv1, depth1, depth_threshold_rel=1e-3):
     from fgcli.kernels.fill import extrap_fill_kernel
 
     h, w = depth1.shape[-2:]
-    to1, to0, dep = _empty(2, h, w), _empty(2, h, w), _empty(1, h, w)
+    has0 = result.to0 is not None
+    to1, dep = _empty(2, h, w), _empty(1, h, w)
+    to0 = _empty(2, h, w) if has0 else None
     holes = _empty(1, h, w, dtype=torch.bool)
-    extrap_fill_kernel(_a(mv1), _a(depth1)[0], _a(result.to1), _a(result.to0),
-                       _a(result.valid)[0], _a(result.depth)[0], F32(a), F32(1.0 - thr),
-                       to1.numpy(), to0.numpy(), dep.numpy()[0], holes.numpy()[0])
+    extrap_fill_kernel(_a(mv1), _a(depth1)[0], _a(result.to1),
+                       _a(result.to0) if has0 else _DUMMY3, has0, _a(result.valid)[0],
+                       _a(result.depth)[0], F32(a), F32(1.0 - thr), to1.numpy(),
+                       to0.numpy() if has0 else _DUMMY3, dep.numpy()[0], holes.numpy()[0])
     return result.replace(to1=to1, to0=to0, depth=dep, holes=holes)
 
 

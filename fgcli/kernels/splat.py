@@ -166,9 +166,10 @@ def _target(dx, dy, xf, yf, w, h):
 
 
 @njit(**INLINE)
-def _resolve_px(k, x, y, quad, depth1, mv1, disp, ca, w, to1, to0, dout, valid, source):
+def _resolve_px(k, x, y, quad, w0, depth1, mv1, disp, ca, w, to1, to0, dout, valid, source):
     """Target pixel (x, y) from its winning key k (I64_MAX: a hole); quadratic: the
-    source's displacement as the scatter stored it in disp."""
+    source's displacement as the scatter stored it in disp; w0: write to0 too (quad and
+    w0 are literals at every call, so each loop is compiled without the other case)."""
     ok = k != I64_MAX
     lo = k & 0xFFFFFFFF
     sy = (lo >> 16) if ok else y
@@ -186,12 +187,13 @@ def _resolve_px(k, x, y, quad, depth1, mv1, disp, ca, w, to1, to0, dout, valid, 
     dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
     to1[0, y, x] = -dx if ok else F32(0.0)
     to1[1, y, x] = -dy if ok else F32(0.0)
-    to0[0, y, x] = ax - dx if ok else F32(0.0)
-    to0[1, y, x] = ay - dy if ok else F32(0.0)
+    if w0:
+        to0[0, y, x] = ax - dx if ok else F32(0.0)
+        to0[1, y, x] = ay - dy if ok else F32(0.0)
 
 
 @njit(**KERNEL)
-def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp,
+def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, w0, buf, disp,
                  to1, to0, dout, valid, source):
     """Scatter (minimum of packed keys ``depth bits << 32 | y << 16 | x`` into buf,
     (H+2)*(W+2) with an off-screen ring; the (y, x) packing orders like the flat index),
@@ -266,11 +268,20 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp,
     w2 = w + 2
     for py in prange(h):
         y = np.int64(py)
-        if quad:
+        r = (y + 1) * w2 + 1
+        if quad and w0:
             for x in range(w):
-                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, True, depth1, mv1, disp, ca, w,
-                            to1, to0, dout, valid, source)
+                _resolve_px(buf[r + x], x, y, True, True, depth1, mv1, disp, ca, w, to1, to0,
+                            dout, valid, source)
+        elif quad:
+            for x in range(w):
+                _resolve_px(buf[r + x], x, y, True, False, depth1, mv1, disp, ca, w, to1, to0,
+                            dout, valid, source)
+        elif w0:
+            for x in range(w):
+                _resolve_px(buf[r + x], x, y, False, True, depth1, mv1, disp, ca, w, to1, to0,
+                            dout, valid, source)
         else:
             for x in range(w):
-                _resolve_px(buf[(y + 1) * w2 + x + 1], x, y, False, depth1, mv1, disp, ca, w,
-                            to1, to0, dout, valid, source)
+                _resolve_px(buf[r + x], x, y, False, False, depth1, mv1, disp, ca, w, to1, to0,
+                            dout, valid, source)

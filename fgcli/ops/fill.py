@@ -77,18 +77,20 @@ def _gap_fill_dense(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
     j = k.view(-1) + (k.view(-1) >= 4).to(k.dtype)
     off = torch.div(j, 3, rounding_mode="floor").sub_(1).mul_(w).add_(j.remainder(3).sub_(1))
     srcpix = (aux(h, w, dev)["ar64"] + off).clamp_(0, n - 1)
-    t1, t0 = res.to1.reshape(2, -1), res.to0.reshape(2, -1)
+    has0 = res.to0 is not None
+    t1 = res.to1.reshape(2, -1)
+    t0 = res.to0.reshape(2, -1) if has0 else None
     selv = sel.view(1, h, w)
     if fill == "nearest":
         n1 = t1[:, srcpix].view(2, h, w)
-        n0 = t0[:, srcpix].view(2, h, w)
+        n0 = t0[:, srcpix].view(2, h, w) if has0 else None
     else:  # mean of the candidates' vectors
         wgt = cand.to(torch.float32)[:, None]  # (8, 1, H, W)
         cnt = wgt.sum(0)
         n1 = (_shifted(res.to1, 0.0) * wgt).sum(0) / cnt
-        n0 = (_shifted(res.to0, 0.0) * wgt).sum(0) / cnt
+        n0 = (_shifted(res.to0, 0.0) * wgt).sum(0) / cnt if has0 else None
     to1 = torch.where(selv, n1, res.to1)
-    to0 = torch.where(selv, n0, res.to0)
+    to0 = torch.where(selv, n0, res.to0) if has0 else None
     depth = torch.where(selv, d.view(-1)[srcpix].view(1, h, w), d[None])
     source = torch.where(selv, res.source.reshape(-1)[srcpix].view(1, h, w), res.source)
     filled = selv
@@ -99,7 +101,8 @@ def _gap_fill_dense(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
         a = res.alpha
         c1, c0 = (-(1.0 - a), a) if res.mode == "interp" else (a, 1.0 + a)
         to1 = torch.where(holes, m * c1, to1)
-        to0 = torch.where(holes, m * c0, to0)
+        if has0:
+            to0 = torch.where(holes, m * c0, to0)
         if fallback_depth is not None:
             depth = torch.where(holes, sanitize_depth(fallback_depth), depth)
     return res.replace(to1=to1, to0=to0, depth=depth, valid=new_valid, source=source,
@@ -112,8 +115,9 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
     h, w, valid, hole, d = _gap_inputs(res)
     n = h * w
     dev = res.depth.device
+    has0 = res.to0 is not None
     to1 = res.to1.clone()
-    to0 = res.to0.clone()
+    to0 = res.to0.clone() if has0 else None
     depth = d.clone()[None]
     source = res.source.clone()
     filled = torch.zeros((1, h, w), dtype=torch.bool, device=dev)
@@ -151,16 +155,17 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
             key = dn[sel].masked_fill(~c_sel, 0x7FFFFFFF)
             k = key.argmin(dim=1)  # nearest candidate; ties -> first in row-major order
             srcpix = tgt + offu[k]
-            t1 = res.to1.reshape(2, -1)
-            t0 = res.to0.reshape(2, -1)
+            pairs = [(to1, res.to1.reshape(2, -1))]
+            if has0:
+                pairs.append((to0, res.to0.reshape(2, -1)))
             if fill == "nearest":
-                to1.view(2, -1)[:, tgt] = t1[:, srcpix]
-                to0.view(2, -1)[:, tgt] = t0[:, srcpix]
+                for dst, srcf in pairs:
+                    dst.view(2, -1)[:, tgt] = srcf[:, srcpix]
             else:  # mean of the candidates' vectors (the paper's "mean filter")
                 nbu = (tgt[:, None] + offu[None, :]).clamp_(0, n - 1)  # OOB: not candidates
                 wgt = c_sel.to(torch.float32)
                 cnt = wgt.sum(1)
-                for dst, srcf in ((to1, t1), (to0, t0)):
+                for dst, srcf in pairs:
                     vals = srcf[:, nbu]  # (2, S, 8)
                     dst.view(2, -1)[:, tgt] = (vals * wgt[None]).sum(2) / cnt[None]
             depth.view(-1)[tgt] = d.view(-1)[srcpix]
@@ -175,7 +180,8 @@ def _gap_fill_frame(res: SplatResult, thr, fill, fallback_mv, fallback_depth):
             a = res.alpha
             c1, c0 = (-(1.0 - a), a) if res.mode == "interp" else (a, 1.0 + a)
             to1.view(2, -1)[:, hidx] = m * c1
-            to0.view(2, -1)[:, hidx] = m * c0
+            if has0:
+                to0.view(2, -1)[:, hidx] = m * c0
             if fallback_depth is not None:
                 depth.view(-1)[hidx] = sanitize_depth(fallback_depth).reshape(-1)[hidx]
     return res.replace(to1=to1, to0=to0, depth=depth, valid=new_valid, source=source,
@@ -346,14 +352,16 @@ def fill_extrap_holes(result: SplatResult, mv1: torch.Tensor, depth1: torch.Tens
     """extrap_hole_fill applied to a SplatResult (mode 'extrap'); returns a new result.
 
     Hole pixels (``result.valid`` False) get to1 and depth from extrap_hole_fill and
-    ``to0 = to1 + mv1(q + to1)`` (nearest fetch); ``valid`` is unchanged, ``holes`` is set
-    to the filled pixels.
+    ``to0 = to1 + mv1(q + to1)`` (nearest fetch; a result without to0 keeps None);
+    ``valid`` is unchanged, ``holes`` is set to the filled pixels.
     """
     _check_result(result)
     if result.mode != "extrap":
         raise ValueError(f"fill_extrap_holes: needs an 'extrap' SplatResult, got {result.mode!r}")
     to1, depth, filled = extrap_hole_fill(mv1, depth1, result.to1, result.valid, result.depth,
                                           result.alpha, depth_threshold_rel)
+    if result.to0 is None:  # (splat_motion(toward0=False): frame 1's offsets only)
+        return result.replace(to1=to1, depth=depth, holes=filled)
     mv1 = sanitize_mv(check_tensor(mv1, "mv1", 2))
     to0 = result.to0.clone()
     frames = [(to0, to1, mv1, filled)] if to1.dim() == 3 else \

@@ -95,7 +95,10 @@ class SplatResult:
         winning source pixel p1 (p_t = its position at the target time), i.e. the
         surface's exact sub-pixel motion, not ``p1 - q``. 0 where not valid.
     to0: (2, H, W) offset from q to the position in frame 0: ``to1 + a`` with
-        a = mv1(p1) (interpolation and extrapolation alike). 0 where not valid.
+        a = mv1(p1) (interpolation and extrapolation alike). 0 where not valid. None when
+        the splat was asked for frame 1's offsets only (``splat_motion(toward0=False)``:
+        extrapolation, where no stage samples frame 0); gap_fill and fill_extrap_holes
+        keep it None.
     depth: (1, H, W) frame-1 depth of the winning surface (not interpolated in time);
         +inf where nothing splatted.
     valid: (1, H, W) bool: the target received a splat (after gap_fill: or was filled
@@ -109,7 +112,7 @@ class SplatResult:
     """
 
     to1: torch.Tensor
-    to0: torch.Tensor
+    to0: torch.Tensor | None
     depth: torch.Tensor
     valid: torch.Tensor
     source: torch.Tensor
@@ -168,7 +171,8 @@ def _pack_key(d, ax):
     return key
 
 
-def _splat_frame(depth1, mv1, mv0, alpha, model, mode, depth0=None, depth0_tol=0.05):
+def _splat_frame(depth1, mv1, mv0, alpha, model, mode, depth0=None, depth0_tol=0.05,
+                 toward0=True):
     h, w = depth1.shape[-2:]
     n = h * w
     dev = depth1.device
@@ -218,14 +222,16 @@ def _splat_frame(depth1, mv1, mv0, alpha, model, mode, depth0=None, depth0_tol=0
     # per-source offsets to frame 1 and frame 0, with one trailing zero entry that the
     # empty targets (src = -1 -> n) read
     s1 = torch.empty((2, n + 1), dtype=torch.float32, device=dev)
-    s0 = torch.empty((2, n + 1), dtype=torch.float32, device=dev)
     s1[:, n] = 0.0
-    s0[:, n] = 0.0
     torch.neg(disp.view(2, n), out=s1[:, :n])  # p1 - p_t
-    torch.sub(a.reshape(2, n), disp.view(2, n), out=s0[:, :n])  # p1 + a - p_t
     gi = src.view(-1).remainder(n + 1)
     to1 = gather_pixels(s1, gi).view(2, h, w)
-    to0 = gather_pixels(s0, gi).view(2, h, w)
+    to0 = None
+    if toward0:
+        s0 = torch.empty((2, n + 1), dtype=torch.float32, device=dev)
+        s0[:, n] = 0.0
+        torch.sub(a.reshape(2, n), disp.view(2, n), out=s0[:, :n])  # p1 + a - p_t
+        to0 = gather_pixels(s0, gi).view(2, h, w)
     return SplatResult(to1=to1, to0=to0, depth=depth_t, valid=valid[None], source=src[None],
                        alpha=float(alpha), mode=mode)
 
@@ -250,7 +256,7 @@ def splat_args(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel):
 def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | None,
                  alpha: float, model: str = "quadratic", mode: str = "interp",
                  depth0: torch.Tensor | None = None,
-                 depth0_tol_rel: float = 0.05) -> SplatResult:
+                 depth0_tol_rel: float = 0.05, toward0: bool = True) -> SplatResult:
     """Forward-splat frame 1's motion to the generated time (Mob-FGSR section 3.3).
 
     For every source pixel p1 of frame 1, with a = mv1(p1) and b = mv0(p1 + a) (frame 0's
@@ -277,6 +283,9 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
         mv0: (2, H, W) frame-0 vectors, or None.
         depth0: (1, H, W) frame-0 depth or None (see above).
         alpha: see above. model: 'quadratic' | 'linear'. mode: 'interp' | 'extrap'.
+        toward0: False leaves ``to0`` out (None): an extrapolation samples frame 1 only,
+            and the field costs ~80 MB of memory traffic per 1080p frame through the
+            splat and the fills.
         (All tensors may carry a leading batch dim B, all or none.)
 
     Returns:
@@ -293,9 +302,9 @@ def splat_motion(depth1: torch.Tensor, mv1: torch.Tensor, mv0: torch.Tensor | No
     if depth1.dim() == 4:
         return SplatResult.stack([
             _splat_frame(depth1[i], mv1[i], None if mv0 is None else mv0[i], a, model, mode,
-                         None if depth0 is None else depth0[i], tol)
+                         None if depth0 is None else depth0[i], tol, bool(toward0))
             for i in range(depth1.shape[0])])
-    return _splat_frame(depth1, mv1, mv0, a, model, mode, depth0, tol)
+    return _splat_frame(depth1, mv1, mv0, a, model, mode, depth0, tol, bool(toward0))
 
 
 def generated_mv(result: SplatResult, copy: bool = True) -> torch.Tensor:
@@ -313,4 +322,7 @@ def generated_mv(result: SplatResult, copy: bool = True) -> torch.Tensor:
     if not isinstance(result, SplatResult):
         raise TypeError(f"result: expected a SplatResult, got {type(result).__name__}")
     mv = result.to0 if result.mode == "interp" else result.to1
+    if mv is None:
+        raise ValueError("generated_mv: an interpolation result without to0 "
+                         "(splat_motion(toward0=False) is for extrapolation)")
     return mv.clone() if copy else mv

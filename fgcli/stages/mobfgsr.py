@@ -97,10 +97,13 @@ class Splat(Stage):
         model = self.model(ctx["mode"])
         mv0 = ctx.get("mv0") if model == "quadratic" else None
         d0 = ctx.get("depth0") if (mv0 is not None and self.mv0_depth_check) else None
+        # an extrapolation samples frame 1 only: no offsets toward frame 0 (their plane
+        # pair cost ~80 MB of traffic per 1080p frame through the splat and the fills)
         return {"motion": splat_motion(ctx["depth1_d"], ctx["mv1_d"], mv0, ctx["alpha"],
                                        model="linear" if mv0 is None else model,
                                        mode=ctx["mode"], depth0=d0,
-                                       depth0_tol_rel=self.mv0_depth_tol)}
+                                       depth0_tol_rel=self.mv0_depth_tol,
+                                       toward0=ctx["mode"] == "interp")}
 
 
 @register
@@ -178,7 +181,7 @@ class Warp(Stage):
         from fgcli.ops._util import reads_back
 
         if (not facts["any_motion"] and reads_back(m.to1) and not bool(m.to1.any())
-                and not bool(m.to0.any())):
+                and (m.to0 is None or not bool(m.to0.any()))):
             return False, "zero motion: samples are the rendered frames"
         return True, ""
 
