@@ -18,19 +18,9 @@ import torch
 from fgcli import ops as R
 from fgcli.ops import _util
 
-from test_kernels import CASES, IDS, _splats
+from test_kernels import CASES, IDS, _splats, dense
 
 INF, NAN = float("inf"), float("nan")
-
-
-@contextlib.contextmanager
-def dense():
-    old = _util.FORCE_DENSE
-    _util.FORCE_DENSE = True
-    try:
-        yield
-    finally:
-        _util.FORCE_DENSE = old
 
 
 def both(fn):

@@ -217,7 +217,7 @@ def test_splat_without_offsets_toward_frame0(name, f):
             same_result(f"{mode} {label}", g_part, g_full.replace(to0=None))
             if ker is not None:
                 same_result(f"{mode} {label} kernel", ker(part), g_part)
-            with _dense():
+            with dense():
                 same_result(f"{mode} {label} dense", ref(part), g_part)
         if mode == "extrap":
             g_full, g_part = R.gap_fill(full), R.gap_fill(part)
@@ -225,7 +225,7 @@ def test_splat_without_offsets_toward_frame0(name, f):
             e_part = R.fill_extrap_holes(g_part, f["mv1"], dd)
             same_result("extrap_fill", e_part, e_full.replace(to0=None))
             same_result("extrap_fill kernel", K.fill_extrap_holes(g_part, f["mv1"], dd), e_part)
-            with _dense():
+            with dense():
                 same_result("extrap_fill dense", R.fill_extrap_holes(g_part, f["mv1"], dd),
                             e_part)
         else:
@@ -238,7 +238,9 @@ def test_splat_without_offsets_toward_frame0(name, f):
 
 
 @contextlib.contextmanager
-def _dense():
+def dense():
+    """The reference ops' GPU (dense, no read-back) paths, on the CPU
+    (fgcli.ops._util.FORCE_DENSE; tests/test_dense_paths.py uses it too)."""
     from fgcli.ops import _util
 
     old = _util.FORCE_DENSE
