@@ -415,7 +415,7 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
                 costs = []
                 for _ in range(2):  # the second run is the warm one
                     t1 = time.perf_counter()
-                    stage.run(dict(ctx))
+                    stage.run(_borrowed(ctx))
                     if sync is not None:
                         sync()
                     costs.append((time.perf_counter() - t1) * 1000.0)
@@ -437,6 +437,14 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
     if missing:
         raise UsageError(f"pipeline produced no {', '.join(missing)} (check its stages)")
     return ctx
+
+
+def _borrowed(ctx: dict) -> dict:
+    """A copy of ctx for measuring a skipped stage: results an in-place refinement could
+    write into (SplatResult.scratch) go in as non-scratch views, so the measuring run
+    cannot change what the pipeline goes on with."""
+    return {k: (v.replace(scratch=False) if getattr(v, "scratch", False) is True else v)
+            for k, v in ctx.items()}
 
 
 def cut_outputs(ctx: dict) -> dict:

@@ -194,6 +194,76 @@ def test_gap_fill_on_crack_fields():
                         R.gap_fill(r, thr, "nearest", fb, depth))
 
 
+def _scratch_copy(r):
+    """A scratch SplatResult with planes of its own (what splat_motion's kernel returns)."""
+    return r.replace(**{k: (None if getattr(r, k) is None else getattr(r, k).clone())
+                        for k in ("to1", "to0", "depth", "valid", "source")}, scratch=True)
+
+
+def _planes(r):
+    return [None if t is None else t.clone() for t in (r.to1, r.to0, r.depth, r.valid,
+                                                          r.source)]
+
+
+@pytest.mark.parametrize("name,f", CASES, ids=IDS)
+def test_in_place_refinements_match_the_reference(name, f):
+    """gap_fill / fill_extrap_holes with in_place=True write into a scratch result's
+    planes (the kernels' own, fresh splat output) with the reference's result, and spend
+    it; a result that is not scratch is never written to."""
+    for label, dd, mm, mv0, a, kw, d0 in _splats(f):
+        r = K.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
+        assert r.scratch, label
+        fb = [(None, None), (f["mv0"], f["d0"]), (f["mv1"], None)]
+        for thr in (0.01, 0.0, 1.0):
+            for fmv, fd in fb:
+                want = R.gap_fill(r, thr, "nearest", fmv, fd)
+                src = _scratch_copy(r)
+                got = K.gap_fill(src, thr, "nearest", fmv, fd, in_place=True)
+                same_result(f"{label} gap_fill {thr} in place", got, want)
+                assert got.to1.data_ptr() == src.to1.data_ptr(), label  # no copy made
+                assert got.scratch and not src.scratch, label
+                # a spent (or any non-scratch) result is read, never written
+                before = _planes(src)
+                again = K.gap_fill(src, thr, "nearest", fmv, fd, in_place=True)
+                for x, y in zip(before, _planes(src)):
+                    assert (x is None and y is None) or torch.equal(x, y), label
+                assert again.to1.data_ptr() != src.to1.data_ptr(), label
+        if r.mode == "extrap":
+            g = R.gap_fill(r)
+            for thr in (1e-3, 0.5):
+                want = R.fill_extrap_holes(g, f["mv1"], dd, thr)
+                src = _scratch_copy(g)
+                got = K.fill_extrap_holes(src, f["mv1"], dd, thr, in_place=True)
+                same_result(f"{label} extrap_fill {thr} in place", got, want)
+                assert got.to1.data_ptr() == src.to1.data_ptr() and not src.scratch, label
+
+
+def test_in_place_gap_fill_cleans_an_unclean_depth_plane():
+    """A scratch result whose depth is not sanitised (NaN, negative and finite values at
+    holes: not what the splat writes, but what a caller may hand in) comes out as the
+    reference's, through the in-place kernels' row-cleaning pass."""
+    g = torch.Generator().manual_seed(5)
+    for h, w in ((6, 7), (31, 45)):
+        depth = 1.0 + torch.rand(1, h, w, generator=g) * 3
+        depth[0, 1, 2], depth[0, 3, 4], depth[0, -1, 0] = NAN, -2.0, INF
+        valid = torch.rand(1, h, w, generator=g) < 0.8
+        to1 = torch.randn(2, h, w, generator=g)
+        for mode in ("interp", "extrap"):
+            r = R.SplatResult(to1=to1, to0=-to1 * 0.5, depth=depth, valid=valid,
+                              source=torch.arange(h * w, dtype=torch.int32).view(1, h, w),
+                              alpha=0.5, mode=mode)
+            want = R.gap_fill(r, 0.01)
+            got = K.gap_fill(_scratch_copy(r), 0.01, in_place=True)
+            same_result(f"{h}x{w} {mode}", got, want)
+            if mode == "extrap":
+                mv1 = torch.randn(2, h, w, generator=g) * 3
+                e = R.SplatResult(to1=to1, to0=None, depth=depth, valid=valid,
+                                  source=r.source, alpha=0.5, mode=mode)
+                same_result(f"{h}x{w} extrap_fill",
+                            K.fill_extrap_holes(_scratch_copy(e), mv1, depth, in_place=True),
+                            R.fill_extrap_holes(e, mv1, depth))
+
+
 @pytest.mark.parametrize("name,f", CASES[:3], ids=IDS[:3])
 def test_splat_without_offsets_toward_frame0(name, f):
     """splat_motion(toward0=False) (extrapolation: no stage samples frame 0) leaves to0

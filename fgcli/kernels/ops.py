@@ -82,7 +82,7 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     if h >= 65536 or w >= 65536:  # the kernel packs sources as y << 16 | x
         return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel,
                               toward0)
-    from fgcli.kernels.splat import splat_kernel
+    from fgcli.kernels.splat import splat_kernel, splat_resolve_kernel
 
     ca, cb = R.motion_coefficients(a, model if mv0 is not None else "linear", mode)
     quad = cb != 0.0
@@ -94,35 +94,62 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     source = _empty(1, h, w, dtype=torch.int32)
     buf = np.empty((h + 2) * (w + 2), dtype=np.int64)
     disp = _empty(2, h, w).numpy() if quad else _DUMMY3  # (linear: unused)
-    splat_kernel(_a(depth1)[0], _a(mv1), _a(mv0) if quad else _DUMMY3,
-                 _a(depth0)[0] if use_d0 else _a(depth1)[0], F32(ca), F32(cb), quad, use_d0,
-                 F32(tol), w0, buf, disp, to1.numpy(), to0.numpy() if w0 else _DUMMY3,
-                 dt.numpy()[0], valid.numpy()[0], source.numpy()[0])
+    d1 = _a(depth1)[0]
+    splat_kernel(d1, _a(mv1), _a(mv0) if quad else _DUMMY3, _a(depth0)[0] if use_d0 else d1,
+                 F32(ca), F32(cb), quad, use_d0, F32(tol), buf, disp)
+    splat_resolve_kernel(buf, d1, _a(mv1), disp, F32(ca), quad, w0, to1.numpy(),
+                         to0.numpy() if w0 else _DUMMY3, dt.numpy()[0], valid.numpy()[0],
+                         source.numpy()[0])
     return R.SplatResult(to1=to1, to0=to0, depth=dt, valid=valid, source=source,
-                         alpha=float(a), mode=mode)
+                         alpha=float(a), mode=mode, scratch=True)
+
+
+def _spend(result):
+    """Mark a result whose planes an in-place refinement took over."""
+    result.scratch = False
 
 
 # ----------------------------------------------------------------------------- fill
 
 
+def _in_place(result, in_place) -> bool:
+    """Whether a refinement may write into result's planes: asked to, scratch (no one else
+    holds them), and plain per-frame contiguous planes."""
+    if not (in_place and result.scratch):
+        return False
+    planes = [result.to1, result.depth, result.valid, result.source] + \
+        ([] if result.to0 is None else [result.to0])
+    return all(t.is_contiguous() and t.dim() == 3 for t in planes)
+
+
 def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
-             fallback_depth=None):
+             fallback_depth=None, in_place=False):
     if not isinstance(result, R.SplatResult) or fill != "nearest" or \
             not _cpu(result.depth, fallback_mv, fallback_depth):
         return R.gap_fill(result, depth_threshold_rel, fill, fallback_mv, fallback_depth)
     thr, fallback_mv, fallback_depth = R.fill.gap_fill_args(result, depth_threshold_rel,
                                                             fallback_mv, fallback_depth)
-    from fgcli.kernels.fill import gap_fill_kernel
+    from fgcli.kernels.fill import gap_fill_inplace_kernel, gap_fill_kernel
 
     h, w = result.depth.shape[-2:]
     a = result.alpha
     c1, c0 = (-(1.0 - a), a) if result.mode == "interp" else (a, 1.0 + a)
     has0 = result.to0 is not None
+    has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
+    if _in_place(result, in_place):
+        filled, holes = (_empty(1, h, w, dtype=torch.bool) for _ in range(2))
+        gap_fill_inplace_kernel(
+            _a(result.to1), _a(result.to0) if has0 else _DUMMY3, has0, _a(result.depth)[0],
+            _a(result.valid)[0].view(np.uint8), _a(result.source)[0], F32(1.0 - thr),
+            _a(fallback_mv) if has_fb else _a(result.to1),
+            _a(fallback_depth)[0] if has_fbd else _a(result.depth)[0], has_fb, has_fbd,
+            F32(c1), F32(c0), filled.numpy()[0], holes.numpy()[0])
+        _spend(result)
+        return result.replace(filled=filled, holes=holes, scratch=True)
     to1, dep = _empty(2, h, w), _empty(1, h, w)
     to0 = _empty(2, h, w) if has0 else None
     valid, filled, holes = (_empty(1, h, w, dtype=torch.bool) for _ in range(3))
     source = _empty(1, h, w, dtype=torch.int32)
-    has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
     gap_fill_kernel(_a(result.to1), _a(result.to0) if has0 else _DUMMY3, has0,
                     _a(result.depth)[0], _a(result.valid)[0], _a(result.source)[0],
                     F32(1.0 - thr),
@@ -132,11 +159,12 @@ def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
                     F32(c1), F32(c0), to1.numpy(), to0.numpy() if has0 else _DUMMY3,
                     dep.numpy()[0],
                     valid.numpy()[0], source.numpy()[0], filled.numpy()[0], holes.numpy()[0])
+    # every plane is new: whoever gets this result may refine it in place
     return result.replace(to1=to1, to0=to0, depth=dep, valid=valid, source=source,
-                          filled=filled, holes=holes)
+                          filled=filled, holes=holes, scratch=True)
 
 
-def fill_extrap_holes(result, mv1, depth1, depth_threshold_rel=1e-3):
+def fill_extrap_holes(result, mv1, depth1, depth_threshold_rel=1e-3, in_place=False):
     if not isinstance(result, R.SplatResult) or result.mode != "extrap" or \
             not _cpu(result.depth, mv1, depth1):
         return R.fill_extrap_holes(result, mv1, depth1, depth_threshold_rel)
@@ -145,10 +173,18 @@ def fill_extrap_holes(result, mv1, depth1, depth_threshold_rel=1e-3):
     check_same(mv1, "mv1", (depth1, "depth1"), (result.to1, "to1"))
     a = check_alpha(result.alpha, hi=ALPHA_MAX)
     thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
-    from fgcli.kernels.fill import extrap_fill_kernel
+    from fgcli.kernels.fill import extrap_fill_inplace_kernel, extrap_fill_kernel
 
     h, w = depth1.shape[-2:]
     has0 = result.to0 is not None
+    if _in_place(result, in_place):
+        holes = _empty(1, h, w, dtype=torch.bool)
+        extrap_fill_inplace_kernel(_a(mv1), _a(depth1)[0], _a(result.to1),
+                                   _a(result.to0) if has0 else _DUMMY3, has0,
+                                   _a(result.valid)[0], _a(result.depth)[0], F32(a),
+                                   F32(1.0 - thr), holes.numpy()[0])
+        _spend(result)
+        return result.replace(holes=holes, scratch=True)
     to1, dep = _empty(2, h, w), _empty(1, h, w)
     to0 = _empty(2, h, w) if has0 else None
     holes = _empty(1, h, w, dtype=torch.bool)
@@ -423,6 +459,9 @@ _GROUPS = (
      ("core", lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp",
                                      i["d"], 0.05)),
      ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),
+     ("core", lambda i: gap_fill(splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic",
+                                              "interp", i["d"], 0.05),
+                                 0.01, "nearest", i["mv"], i["d"], in_place=True)),
      ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
                                   0.5, 0.02, 0.13, static_from=i["gf"])),
      ("core", lambda i: any_nonzero(i["mv"])),
@@ -434,6 +473,9 @@ _GROUPS = (
      ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
+     ("core", lambda i: fill_extrap_holes(
+         gap_fill(splat_motion(i["dd"], i["mm"], None, 0.5, "linear", "extrap", toward0=False),
+                  0.01, in_place=True), i["mv"], i["dd"], in_place=True)),
      ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),
      ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
      ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
@@ -472,7 +514,9 @@ def _cache_cold(families=None) -> bool:
     kernels = ()
     if "core" in fams:
         kernels += (splat.dilate_kernel, splat.dilate3_kernel, splat.splat_kernel,
+                    splat.splat_resolve_kernel,
                     fill.gap_fill_kernel, fill.extrap_fill_kernel, warp.warp_kernel,
+                    fill.gap_fill_inplace_kernel, fill.extrap_fill_inplace_kernel,
                     warp.mv_warp_kernel, blend.blend_kernel, blend.crossfade_kernel,
                     blend.any_nonzero_kernel)
     if "fsr3" in fams:

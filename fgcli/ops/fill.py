@@ -203,7 +203,7 @@ def gap_fill_args(result, depth_threshold_rel, fallback_mv, fallback_depth):
 
 def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str = "nearest",
              fallback_mv: torch.Tensor | None = None,
-             fallback_depth: torch.Tensor | None = None) -> SplatResult:
+             fallback_depth: torch.Tensor | None = None, in_place: bool = False) -> SplatResult:
     """Mob-FGSR refinement of splatted motion: fill grid-like cracks, keep disocclusions.
 
     For each empty or suspicious target pixel q, its 3x3 neighbours that are valid and
@@ -230,6 +230,9 @@ def gap_fill(result: SplatResult, depth_threshold_rel: float = 0.01, fill: str =
             uses 0.0005 on [0, 1] device depth).
         fill: 'nearest' | 'mean'.
         fallback_mv, fallback_depth: (2, H, W), (1, H, W) [batched like result] or None.
+        in_place: the caller gives up ``result``: where it is scratch (SplatResult.scratch)
+            an implementation may write the refinement into its planes (the numba kernel
+            does; this reference always returns new ones).
 
     Returns:
         A new SplatResult with to1, to0, depth, valid, source updated, ``filled`` (1, H, W)
@@ -348,12 +351,13 @@ def extrap_hole_fill(mv1: torch.Tensor, depth1: torch.Tensor, to1: torch.Tensor,
 
 
 def fill_extrap_holes(result: SplatResult, mv1: torch.Tensor, depth1: torch.Tensor,
-                      depth_threshold_rel: float = 1e-3) -> SplatResult:
+                      depth_threshold_rel: float = 1e-3, in_place: bool = False) -> SplatResult:
     """extrap_hole_fill applied to a SplatResult (mode 'extrap'); returns a new result.
 
     Hole pixels (``result.valid`` False) get to1 and depth from extrap_hole_fill and
     ``to0 = to1 + mv1(q + to1)`` (nearest fetch; a result without to0 keeps None);
-    ``valid`` is unchanged, ``holes`` is set to the filled pixels.
+    ``valid`` is unchanged, ``holes`` is set to the filled pixels. in_place: as gap_fill's
+    (this reference always returns new planes).
     """
     _check_result(result)
     if result.mode != "extrap":

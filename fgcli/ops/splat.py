@@ -109,6 +109,11 @@ class SplatResult:
     filled: (1, H, W) bool or None: pixels changed by gap filling (refinement).
     holes: (1, H, W) bool or None: pixels that had no vector after refinement (and took the
         fallback rule, if any).
+    scratch: True when no one else holds the planes (the numba kernels' fresh outputs): a
+        refinement called with ``in_place=True`` (gap_fill, fill_extrap_holes) may then
+        write into them instead of copying them, and the result it was given is spent
+        (scratch False, planes overwritten). ``replace`` clears it unless told otherwise: a
+        replaced result shares planes with the one it came from.
     """
 
     to1: torch.Tensor
@@ -120,15 +125,17 @@ class SplatResult:
     mode: str
     filled: torch.Tensor | None = None
     holes: torch.Tensor | None = None
+    scratch: bool = False
 
     def replace(self, **kw) -> "SplatResult":
+        kw.setdefault("scratch", False)
         return replace(self, **kw)
 
     def frame(self, i: int) -> "SplatResult":
         """The i-th frame of a batched result."""
         kw = {f.name: (getattr(self, f.name)[i] if isinstance(getattr(self, f.name), torch.Tensor)
                        else getattr(self, f.name)) for f in fields(self)}
-        return SplatResult(**kw)
+        return SplatResult(**dict(kw, scratch=False))  # (views of the batch)
 
     @staticmethod
     def stack(results) -> "SplatResult":
@@ -139,7 +146,7 @@ class SplatResult:
                 kw[f.name] = torch.stack(vals)
             else:
                 kw[f.name] = vals[0]
-        return SplatResult(**kw)
+        return SplatResult(**dict(kw, scratch=False))
 
 
 def motion_coefficients(alpha: float, model: str, mode: str) -> tuple[float, float]:
