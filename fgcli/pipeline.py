@@ -314,6 +314,10 @@ def frame_facts(ctx: dict, detect_cuts: bool = True) -> dict:
 
     if on_host:
         any_motion, history_motion = nonzero(mv1), nonzero(mv0)
+        if detect_cuts:
+            from fgcli.kernels import op
+
+            score = float(op("scene_change_score_tensor", ctx)(ctx["color0"], ctx["color1"]))
     else:
         # on a GPU every value read back is a host round-trip: the motion tests and the
         # scene-cut histogram score come back together, in one transfer per frame

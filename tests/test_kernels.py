@@ -792,3 +792,43 @@ def test_stages_declare_their_kernels(tmp_path):
     assert e.value.code in (0, None)
     run = json.loads((tmp_path / "o" / "fgen-run.json").read_text())
     assert run["backend"] == "numba" and run["kernel_load_ms"] is None
+
+
+def test_scene_change_score_is_the_references_bit_for_bit():
+    """The scene-cut histogram score (every frame's facts) by the numba sampling and
+    counting equals the torch reference exactly, and so do its two parts: the sampled
+    linear luma (hard values: NaN, +-inf, negative, above 1; sizes the stride does not
+    divide) and the counts (levels exactly half-way between two bins: round half to
+    even)."""
+    import numpy as np
+
+    from fgcli.kernels.scene import scene_counts_kernel, scene_luma_kernel
+    from fgcli.ops import scene as SC
+
+    g = torch.Generator().manual_seed(3)
+    for h, w, stride in ((24, 32, None), (37, 53, None), (37, 53, 3), (200, 310, None),
+                         (200, 310, 4), (9, 7, 2)):
+        a = torch.rand(3, h, w, generator=g) * 1.4 - 0.2
+        b = torch.rand(3, h, w, generator=g) ** 3
+        a[0, 0, 0], a[1, 2, 3], a[2, -1, -1], b[0, 1, 1] = NAN, INF, -INF, NAN
+        s = SC.score_stride(h, w, 3, stride)
+        lum = np.empty((2, -(-h // s), -(-w // s)), dtype=np.float32)
+        scene_luma_kernel(a.numpy(), b.numpy(), s, lum)
+        want = SC._linear_luma(torch.stack((a[:, ::s, ::s], b[:, ::s, ::s])))
+        assert torch.equal(torch.from_numpy(lum), want), (h, w, stride)
+        for x, y in ((a, b), (b, a), (a, a)):
+            for bins, regions in ((32, 3), (16, 2), (7, 1)):
+                want = SC.scene_change_score_tensor(x, y, bins, regions, stride)
+                got = K.scene_change_score_tensor(x, y, bins, regions, stride)
+                assert torch.equal(got, want), (h, w, stride, bins, regions, got, want)
+    for bins, regions in ((32, 3), (16, 2), (7, 1)):
+        k = torch.arange(bins, dtype=torch.float32)
+        ties = torch.cat([(k + 0.5) / (bins - 1), k / (bins - 1), torch.rand(200, generator=g)])
+        ties = ties.clamp(0.0, 1.0)
+        n = ties.numel()
+        lv = ties[torch.randperm(n, generator=g)[: (n // 6) * 6]].view(1, 6, -1).expand(2, 6, -1)
+        lv = lv.contiguous()
+        assert bool(((lv * (bins - 1)) % 1 == 0.5).any())  # exact ties are in there
+        counts = np.zeros((2, regions * regions, bins), dtype=np.float32)
+        scene_counts_kernel(lv.numpy(), bins, regions, counts)
+        assert torch.equal(torch.from_numpy(counts), SC._region_counts(lv, bins, regions))

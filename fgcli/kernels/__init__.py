@@ -54,6 +54,7 @@ KERNEL_OPS = {
     "avg_pool2": "fgcli.ops.pyramid",
     "unpack_vector_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",
+    "scene_change_score_tensor": "fgcli.ops.scene",
 }
 
 

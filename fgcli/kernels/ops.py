@@ -465,6 +465,7 @@ _GROUPS = (
      ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
                                   0.5, 0.02, 0.13, static_from=i["gf"])),
      ("core", lambda i: any_nonzero(i["mv"])),
+     ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
      ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
      ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
                                          i["mv"])),
@@ -508,7 +509,7 @@ def _cache_cold(families=None) -> bool:
     """True when some kernel (of the given families; default all) has no on-disk cache index
     yet (a fresh install). A stale index (an upgrade) reads as warm: those kernels then
     compile one after the other, as before."""
-    from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, splat, warp
+    from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, scene, splat, warp
 
     fams = set(FAMILIES if families is None else families)
     kernels = ()
@@ -518,7 +519,8 @@ def _cache_cold(families=None) -> bool:
                     fill.gap_fill_kernel, fill.extrap_fill_kernel, warp.warp_kernel,
                     fill.gap_fill_inplace_kernel, fill.extrap_fill_inplace_kernel,
                     warp.mv_warp_kernel, blend.blend_kernel, blend.crossfade_kernel,
-                    blend.any_nonzero_kernel)
+                    blend.any_nonzero_kernel, scene.scene_luma_kernel,
+                    scene.scene_counts_kernel)
     if "fsr3" in fams:
         kernels += (flow.block_search_kernel, field.field_scatter_kernel,
                     field.depth_scatter_kernel, fsr3.disocclusion_kernel,
@@ -584,6 +586,34 @@ def any_nonzero(t) -> bool:
     from fgcli.kernels.blend import any_nonzero_kernel
 
     return bool(any_nonzero_kernel(_a(t).reshape(-1)))
+
+
+# ----------------------------------------------------------------------------- scene cuts
+
+
+def scene_change_score_tensor(c0, c1, bins=32, regions=3, stride=None):
+    """fgcli.ops.scene.scene_change_score_tensor with the sampling and counting in numba
+    (fgcli.kernels.scene): the same score, bit for bit."""
+    from fgcli.ops import scene as SC
+
+    if not _cpu(c0, c1) or not isinstance(bins, int) or not isinstance(regions, int) or \
+            bins < 1 or regions < 1:
+        return SC.scene_change_score_tensor(c0, c1, bins, regions, stride)
+    c0 = check_tensor(c0, "c0", 3, allow_batch=False)
+    c1 = check_tensor(c1, "c1", 3, allow_batch=False)
+    check_same(c0, "c0", (c1, "c1"))
+    from fgcli.kernels.scene import scene_counts_kernel, scene_luma_kernel
+
+    h, w = c0.shape[-2:]
+    s = SC.score_stride(h, w, regions, stride)
+    lum = np.empty((2, -(-h // s), -(-w // s)), dtype=np.float32)
+    scene_luma_kernel(_a(c0), _a(c1), s, lum)
+    gamma = torch.from_numpy(lum).pow_(1.0 / 2.2)  # the reference's own pow
+    counts = np.zeros((2, regions * regions, bins), dtype=np.float32)
+    scene_counts_kernel(gamma.numpy(), bins, regions, counts)
+    hist = torch.from_numpy(counts)
+    hist = hist / hist.sum(dim=2, keepdim=True).clamp(min=1.0)
+    return SC.kl_score(hist[0], hist[1])
 
 
 # ----------------------------------------------------------------------------- optical flow

@@ -18,11 +18,21 @@ from fgcli.ops._util import check_tensor, check_same, sanitize_values
 CUT_THRESHOLD = 0.45
 
 
-def _histograms(color: torch.Tensor, bins: int, regions: int) -> torch.Tensor:
-    """(B, 3, h, w) colour -> (B, regions**2, bins) normalised luma histograms."""
-    # display-referred luma (sRGB-ish gamma of clip(x,0,1)) quantised to `bins` levels
+def _linear_luma(color: torch.Tensor) -> torch.Tensor:
+    """(B, 3, h, w) colour -> (B, h, w) luma of the sanitised colour clipped to [0, 1]."""
     c = sanitize_values(color).clamp(0.0, 1.0)
-    luma = (0.2126 * c[:, 0] + 0.7152 * c[:, 1] + 0.0722 * c[:, 2]).pow(1.0 / 2.2)
+    return 0.2126 * c[:, 0] + 0.7152 * c[:, 1] + 0.0722 * c[:, 2]
+
+
+def _luma(color: torch.Tensor) -> torch.Tensor:
+    """(B, 3, h, w) colour -> (B, h, w) display-referred luma: sRGB-ish gamma of
+    _linear_luma."""
+    return _linear_luma(color).pow(1.0 / 2.2)
+
+
+def _region_counts(luma: torch.Tensor, bins: int, regions: int) -> torch.Tensor:
+    """(B, h, w) luma -> (B, regions**2, bins) float pixel counts of the luma quantised to
+    `bins` levels, per region of a regions x regions grid."""
     n, h, w = luma.shape
     q = (luma * (bins - 1)).round().long()
     ry = (torch.arange(h, device=luma.device) * regions // max(h, 1)).clamp(max=regions - 1)
@@ -32,8 +42,31 @@ def _histograms(color: torch.Tensor, bins: int, regions: int) -> torch.Tensor:
     idx = (frame + region * bins + q).reshape(-1)
     hist = torch.zeros(n * regions * regions * bins, device=luma.device)
     hist.index_add_(0, idx, torch.ones_like(idx, dtype=hist.dtype))
-    hist = hist.view(n, regions * regions, bins)
+    return hist.view(n, regions * regions, bins)
+
+
+def _histograms(color: torch.Tensor, bins: int, regions: int) -> torch.Tensor:
+    """(B, 3, h, w) colour -> (B, regions**2, bins) normalised luma histograms."""
+    hist = _region_counts(_luma(color), bins, regions)
     return hist / hist.sum(dim=2, keepdim=True).clamp(min=1.0)
+
+
+def score_stride(h: int, w: int, regions: int = 3, stride: int | None = None) -> int:
+    """The pixel subsampling of scene_change_score_tensor: about 4000 samples per region
+    unless given."""
+    if stride is None:
+        stride = int((h * w / (regions * regions) / 4000) ** 0.5)
+    return max(1, int(stride))
+
+
+def kl_score(h0: torch.Tensor, h1: torch.Tensor) -> torch.Tensor:
+    """Mean over regions of the symmetric KL divergence of two (regions**2, bins)
+    normalised histograms (0-dim tensor)."""
+    eps = 1e-4
+    p, q = h0 + eps, h1 + eps
+    p, q = p / p.sum(1, keepdim=True), q / q.sum(1, keepdim=True)
+    kl = ((p - q) * (p.log() - q.log())).sum(dim=1)  # KL(p||q) + KL(q||p)
+    return kl.mean()
 
 
 def scene_change_score(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32,
@@ -56,18 +89,11 @@ def scene_change_score_tensor(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32
     c0 = check_tensor(c0, "c0", 3, allow_batch=False)
     c1 = check_tensor(c1, "c1", 3, allow_batch=False)
     check_same(c0, "c0", (c1, "c1"))
-    h, w = c0.shape[-2:]
-    if stride is None:
-        stride = int((h * w / (regions * regions) / 4000) ** 0.5)
-    s = max(1, int(stride))
+    s = score_stride(*c0.shape[-2:], regions, stride)
     # both frames in one batch: the subsampled frames are small, so per-op overhead
     # dominates (one pass over the pair: 2.4 -> 1.7 ms at 1080p)
     h0, h1 = _histograms(torch.stack((c0[:, ::s, ::s], c1[:, ::s, ::s])), bins, regions)
-    eps = 1e-4
-    p, q = h0 + eps, h1 + eps
-    p, q = p / p.sum(1, keepdim=True), q / q.sum(1, keepdim=True)
-    kl = ((p - q) * (p.log() - q.log())).sum(dim=1)  # KL(p||q) + KL(q||p)
-    return kl.mean()
+    return kl_score(h0, h1)
 
 
 def is_scene_change(c0: torch.Tensor, c1: torch.Tensor, threshold: float = CUT_THRESHOLD,
