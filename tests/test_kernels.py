@@ -832,3 +832,27 @@ def test_scene_change_score_is_the_references_bit_for_bit():
         counts = np.zeros((2, regions * regions, bins), dtype=np.float32)
         scene_counts_kernel(lv.numpy(), bins, regions, counts)
         assert torch.equal(torch.from_numpy(counts), SC._region_counts(lv, bins, regions))
+
+
+def test_brightness_bounds_decide_as_the_table(monkeypatch):
+    """The blend kernel decides most of Eq. 1's brightness tests by slope bounds instead of
+    the x^(1/2.4) table; the bounds may decide only where the table agrees, so the output
+    is bit-identical with the bounds switched off (every test by the table). Differences
+    spread log-uniformly over six decades put many pixels next to each t_b."""
+    g = torch.Generator().manual_seed(8)
+    h, w = 96, 160
+    c0 = torch.rand(3, h, w, generator=g) * 1.3 - 0.05
+    scale = 10.0 ** (torch.rand(1, h, w, generator=g) * 6 - 6)
+    c1 = c0 + torch.randn(3, h, w, generator=g) * scale
+    c0[0, 0, 0], c1[1, 0, 1], c0[2, 1, 1], c1[0, 2, 2] = NAN, INF, -INF, 2.0
+    d = torch.rand(1, h, w, generator=g) * 5 + 1
+    v = torch.ones(1, h, w, dtype=torch.bool)
+    for tb in (0.0, 0.003, 0.02, 0.13, 0.4, 2.0):
+        for a in (0.3, 0.5, 0.7):
+            args = (c0, c1, d, d.clone(), v, v, None, a, 0.02, tb)
+            monkeypatch.setattr(K, "BRIGHT_BOUNDS", True)
+            got = K.blend_interp(*args, return_depth=True)
+            monkeypatch.setattr(K, "BRIGHT_BOUNDS", False)
+            want = K.blend_interp(*args, return_depth=True)
+            for x, y in zip(got, want):
+                assert torch.equal(x, y), (tb, a, int((x != y).sum()))

@@ -253,6 +253,18 @@ def mv_warp(color, depth, mv, scale, mode="bilinear", raw_depth_flow=True):
 # ----------------------------------------------------------------------------- blend
 
 
+BRIGHT_BOUNDS = True  # tests switch it off to compare with the table alone
+
+
+def _bright_margins(tb):
+    """(accept below, reject above) for the blend kernel's brightness bounds: t_b with the
+    margins of fgcli.kernels.blend (relative 1e-5, absolute 4e-6); without the bounds,
+    thresholds no bound can meet."""
+    if not BRIGHT_BOUNDS:
+        return F32(-INF), F32(INF)
+    return F32(tb * (1.0 - 1e-5) - 4e-6), F32(tb * (1.0 + 1e-5) + 4e-6)
+
+
 def blend_interp(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_target=None,
                  alpha=0.5, t_d_rel=R.T_D_REL, t_b=R.T_B, return_depth=False, static=None,
                  static_from=None):
@@ -292,7 +304,8 @@ def blend_interp(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_t
     blend_kernel(_a(c0), _a(c1), _a(d0)[0], _a(d1)[0], _a(v0)[0], _a(v1)[0],
                  _a(d_target)[0] if d_target is not None else _DUMMY2, d_target is not None,
                  mvalid, to1, to0, has_static, F32(a), F32(0.0 if a <= 0.5 else 1.0),
-                 F32(t_d), F32(tb), endpoint, table, base, out_c.numpy(), out_d.numpy()[0])
+                 F32(t_d), F32(tb), *_bright_margins(tb), endpoint, table, base, out_c.numpy(),
+                 out_d.numpy()[0])
     return (out_c, out_d) if return_depth else out_c
 
 
