@@ -843,20 +843,11 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
                 q3 = pf[3, y, x] if f else p1[3, y, x]
                 u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
                 ub[x] = ONE if u else ZERO
-            # one loop per plane, and P_i (i >= 2) written with P'_0 when there is no
-            # history to read (every later point is P'_0 again): a pixel loop over the
-            # four planes, then a copy of P'_0 read back, took 2x as long
-            last = k if nprev == 0 else 2
-            for c in range(4):
-                for x in range(w):
-                    q = pf[c, y, x] if fb[y, x] != U0 else p1[c, y, x]
-                    v = q if ub[x] != ZERO else p[c, y, x]
-                    for i in range(1, last):
-                        out[i, c, y, x] = v
+                for c in range(4):
+                    q = pf[c, y, x] if f else p1[c, y, x]
+                    out[1, c, y, x] = q if u else p[c, y, x]
         for x in range(w):
             dyn[y, x] = np.uint8(1) if ub[x] != ZERO else U0
-        if not from_prev and nprev == 0:
-            continue
         for i in range(2, k):
             if i - 1 < nprev:
                 for x in range(w):
