@@ -464,6 +464,54 @@ def test_block_flow(h, w, levels, block, search, median):
                                     True), ref)
 
 
+def test_mpsadbw_block_search_equals_the_portable_kernel(monkeypatch):
+    """On x86 the 8x8 / -8..7 search sums its SADs with SSE4.1 mpsadbw (exact integers):
+    the same vectors as the portable float kernel, for predictions that push the window
+    past every edge, on noise, flat and striped images; and the intrinsic's sixteen sums
+    equal numpy's."""
+    import numpy as np
+
+    from fgcli.kernels._intrin import HAVE_MPSADBW
+    from fgcli.kernels.flow import block_search_kernel, block_search_sad_kernel
+
+    if not HAVE_MPSADBW:
+        pytest.skip("no SSE4.1 (the portable kernel runs instead)")
+    from numba import njit
+
+    from fgcli.kernels._intrin import sad16_rows
+
+    @njit
+    def sads(win, woff, cur, out):
+        sad16_rows(win, woff, 24, cur, 0, out)
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        win = rng.integers(0, 256, 23 * 24 + 24, dtype=np.uint8)
+        cur = np.zeros(8 * 16, np.uint8)
+        cur.reshape(8, 16)[:, :8] = rng.integers(0, 256, (8, 8))
+        woff = int(rng.integers(0, 16)) * 24
+        out = np.empty(16, np.uint16)
+        sads(win, woff, cur, out)
+        wv = win[woff:woff + 8 * 24].reshape(8, 24).astype(np.int64)
+        cv = cur.reshape(8, 16)[:, :8].astype(np.int64)
+        want = [np.abs(wv[:, dx:dx + 8] - cv).sum() for dx in range(16)]
+        assert out.tolist() == want
+    for h, w in ((64, 96), (37, 53), (9, 7), (1, 30)):
+        nby, nbx = -(-h // 8), -(-w // 8)
+        noise = rng.integers(0, 256, (h, w)).astype(np.uint8)
+        flat = np.full((h, w), 77, np.uint8)
+        stripes = np.broadcast_to((np.arange(w) % 2 * 255).astype(np.uint8), (h, w)).copy()
+        for cur, prev in ((noise, np.roll(noise, (2, -3), (0, 1))), (flat, flat),
+                          (stripes, np.roll(stripes, 1, 1)), (noise, flat)):
+            for pred in (np.zeros((2, nby, nbx), np.int64),
+                         rng.integers(-40, 41, (2, nby, nbx)).astype(np.int64)):
+                a = np.empty_like(pred)
+                b = np.empty_like(pred)
+                block_search_kernel(cur.astype(np.int32), prev.astype(np.int32), pred, 8, 8, a)
+                block_search_sad_kernel(cur, prev, pred, b)
+                assert np.array_equal(a, b), (h, w)
+
+
 def _fsr3_inputs(h, w, seed):
     g = torch.Generator().manual_seed(seed)
     c0, c1 = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)

@@ -535,6 +535,10 @@ def _cache_cold(families=None) -> bool:
                     blend.any_nonzero_kernel, scene.scene_luma_kernel,
                     scene.scene_counts_kernel)
     if "fsr3" in fams:
+        from fgcli.kernels._intrin import HAVE_MPSADBW
+
+        if HAVE_MPSADBW:  # (compiled only where it runs)
+            kernels += (flow.block_search_sad_kernel,)
         kernels += (flow.block_search_kernel, field.field_scatter_kernel,
                     field.depth_scatter_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
@@ -632,11 +636,20 @@ def scene_change_score_tensor(c0, c1, bins=32, regions=3, stride=None):
 # ----------------------------------------------------------------------------- optical flow
 
 
+MPSADBW = True  # tests switch it off to compare with the portable kernel
+
+
 def _block_level(cur, prev, pred, block, search):
     """fgcli.ops.fsr3._block_level (integer vectors) by the numba kernel."""
-    from fgcli.kernels.flow import block_search_kernel
+    from fgcli.kernels._intrin import HAVE_MPSADBW
+    from fgcli.kernels.flow import block_search_kernel, block_search_sad_kernel
 
     out = np.empty((2,) + tuple(pred.shape[-2:]), dtype=np.int64)
+    if block == 8 and search == 8 and MPSADBW and HAVE_MPSADBW:
+        # (cur and prev hold whole numbers in 0..255: the 8-bit conversion is exact)
+        block_search_sad_kernel(_a(cur.to(torch.uint8)), _a(prev.to(torch.uint8)),
+                                _a(pred.to(torch.int64)), out)
+        return torch.from_numpy(out).to(torch.float32)
     block_search_kernel(_a(cur.to(torch.int32)), _a(prev.to(torch.int32)),
                         _a(pred.to(torch.int64)), int(block), int(search), out)
     return torch.from_numpy(out).to(torch.float32)
