@@ -464,6 +464,26 @@ def test_block_flow(h, w, levels, block, search, median):
                                     True), ref)
 
 
+def test_vector_median_is_the_references():
+    """The 3x3 vector median of the block search (numba) against the torch reference on
+    integer fields: edges, large vectors (where the centre's 1e-3 vanishes in float32 and
+    the first of equal sums wins), all-equal fields, one block."""
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(12)
+    for h, w in ((1, 1), (1, 7), (5, 1), (17, 30), (135, 240)):
+        for scale in (2, 9, 3000):
+            f = torch.randint(-scale, scale + 1, (2, h, w), generator=g).float()
+            assert torch.equal(K._median3(f), fsr3._vector_median3(f)), (h, w, scale)
+        z = torch.zeros(2, h, w)
+        assert torch.equal(K._median3(z), fsr3._vector_median3(z))
+        # few values: many equal sums, the tie rule decides; sums of 2**15..2**17, where
+        # float32 loses the centre's 1e-3 (but would keep a 1e-2)
+        for step in (4000.0, 1500.0, 3000.0):
+            t = torch.randint(-1, 2, (2, h, w), generator=g).float() * step
+            assert torch.equal(K._median3(t), fsr3._vector_median3(t)), (h, w, step)
+
+
 def test_mpsadbw_block_search_equals_the_portable_kernel(monkeypatch):
     """On x86 the 8x8 / -8..7 search sums its SADs with SSE4.1 mpsadbw (exact integers):
     the same vectors as the portable float kernel, for predictions that push the window

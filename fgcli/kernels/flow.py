@@ -183,3 +183,37 @@ def block_search_sad_kernel(cur, prev, pred, out):
                         bj = dx
             out[0, by, bx] = px + bj - 8
             out[1, by, bx] = py + bi - 8
+
+
+@njit(**KERNEL)
+def vector_median3_kernel(f, out):
+    """fgcli.ops.fsr3._vector_median3 on an integer vector field: f, out (2, h, w)
+    float32. Of the 3x3 neighbours (edge-replicated, row-major), the one whose summed L1
+    distance to all nine is least, the centre's sum less 1e-3 (float32, as the reference:
+    ties prefer the centre), the first of equal sums otherwise. The sums are of whole
+    numbers below 2**24 (any order gives the same float32), and the centre's 1e-3 is
+    taken off in float32 like the reference's, so the choice is the reference's."""
+    h, w = f.shape[1], f.shape[2]
+    for py in prange(h):
+        y = np.int64(py)
+        vx = np.empty(9, dtype=np.float32)
+        vy = np.empty(9, dtype=np.float32)
+        for x in range(w):
+            for t in range(9):
+                yy = min(max(y + t // 3 - 1, 0), h - 1)
+                xx = min(max(x + t % 3 - 1, 0), w - 1)
+                vx[t] = f[0, yy, xx]
+                vy[t] = f[1, yy, xx]
+            best = 0
+            bc = F32(0.0)
+            for i in range(9):
+                c = F32(0.0)
+                for j in range(9):
+                    c += abs(vx[j] - vx[i]) + abs(vy[j] - vy[i])
+                if i == 4:
+                    c = c - F32(1e-3)
+                if i == 0 or c < bc:
+                    bc = c
+                    best = i
+            out[0, y, x] = vx[best]
+            out[1, y, x] = vy[best]

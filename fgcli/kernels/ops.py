@@ -539,7 +539,8 @@ def _cache_cold(families=None) -> bool:
 
         if HAVE_MPSADBW:  # (compiled only where it runs)
             kernels += (flow.block_search_sad_kernel,)
-        kernels += (flow.block_search_kernel, field.field_scatter_kernel,
+        kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
+                    field.field_scatter_kernel,
                     field.depth_scatter_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
@@ -655,13 +656,24 @@ def _block_level(cur, prev, pred, block, search):
     return torch.from_numpy(out).to(torch.float32)
 
 
+def _median3(f):
+    """fgcli.ops.fsr3._vector_median3 (integer vector fields) by the numba kernel (the
+    reference's stacked 9 x 9 distances cost ~1 ms per level in op overhead)."""
+    from fgcli.kernels.flow import vector_median3_kernel
+
+    fa = _a(f.to(torch.float32))
+    out = np.empty_like(fa)
+    vector_median3_kernel(fa, out)
+    return torch.from_numpy(out)
+
+
 def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=False):
     from fgcli.ops import fsr3 as FS
 
     if not _cpu(lum0, lum1) or block > 256:  # (the kernel's float32 SADs: exact below 2**24)
         return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
-                               subpixel, pool=avg_pool2)
+                               subpixel, pool=avg_pool2, median3=_median3)
 
 
 def _both(fn) -> None:

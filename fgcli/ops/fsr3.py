@@ -390,14 +390,16 @@ def block_flow(lum0: torch.Tensor, lum1: torch.Tensor, levels: int = 7, block: i
 
 
 def block_flow_chain(level, lum0, lum1, levels=7, block=8, search=8, median=True,
-                     subpixel=False, pool=None):
+                     subpixel=False, pool=None, median3=None):
     """block_flow with the per-level search given: ``level(cur, prev, pred, block, search)``
     (integer vectors, as _block_level; the numba kernel of fgcli.kernels.ops has the same
-    signature), and the pyramid's level function ``pool`` (default
-    fgcli.ops.pyramid.avg_pool2). The sub-pixel refinement always runs _block_level."""
+    signature), the pyramid's level function ``pool`` (default
+    fgcli.ops.pyramid.avg_pool2) and the vector median ``median3`` (default
+    _vector_median3). The sub-pixel refinement always runs _block_level."""
     from fgcli.ops.pyramid import avg_pool2
 
     pool = pool or avg_pool2
+    median3 = median3 or _vector_median3
     lum0 = check_tensor(lum0, "lum0", 1, allow_batch=False)
     lum1 = check_tensor(lum1, "lum1", 1, allow_batch=False)
     check_same(lum0, "lum0", (lum1, "lum1"))
@@ -418,7 +420,7 @@ def block_flow_chain(level, lum0, lum1, levels=7, block=8, search=8, median=True
                          mode="replicate")[:, :nby, :nbx] * 2.0
         if lv == 0 and subpixel:
             if median:  # the median runs on the integer field; the refinement comes after
-                flow = _vector_median3(level(p1[lv][0], p0[lv][0], pred, block, search))
+                flow = median3(level(p1[lv][0], p0[lv][0], pred, block, search))
                 flow = _block_level(p1[lv][0], p0[lv][0], flow, block, 2, subpixel=True,
                                     keep=True)
             else:
@@ -426,7 +428,7 @@ def block_flow_chain(level, lum0, lum1, levels=7, block=8, search=8, median=True
             break
         flow = level(p1[lv][0], p0[lv][0], pred, block, search)
         if median:
-            flow = _vector_median3(flow)
+            flow = median3(flow)
     return flow
 
 
