@@ -14,6 +14,79 @@ DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
 
 
 @njit(**INLINE)
+def _row_px(valid, depth, rr, x, rin):
+    """Pixel x of the rolling row buffers: (gap-fill depth, +inf at holes; valid 0 / 1)."""
+    vv = (valid[rr, x] != 0) & rin
+    return (sdepth_b(depth[rr, x]) if vv else INF), (np.uint8(1) if vv else np.uint8(0))
+
+
+@njit(**INLINE)
+def _keep_px(D, V, sa, sb, sc, x, f1):
+    """The 2x2-block rule at pixel x of the rolling buffers (rows sa, sb, sc = y - 1, y,
+    y + 1; column x + 1 is the pixel), as selects: the candidates are the valid
+    neighbours nearer than the limit (every valid one around a hole); the pixel is kept
+    when one of its four 2x2 blocks holds none."""
+    limit = D[sb, x + 1] * f1
+    hc = V[sb, x + 1] == 0
+    n0 = (V[sa, x] != 0) & ((D[sa, x] < limit) | hc)
+    n1 = (V[sa, x + 1] != 0) & ((D[sa, x + 1] < limit) | hc)
+    n2 = (V[sa, x + 2] != 0) & ((D[sa, x + 2] < limit) | hc)
+    n3 = (V[sb, x] != 0) & ((D[sb, x] < limit) | hc)
+    n5 = (V[sb, x + 2] != 0) & ((D[sb, x + 2] < limit) | hc)
+    n6 = (V[sc, x] != 0) & ((D[sc, x] < limit) | hc)
+    n7 = (V[sc, x + 1] != 0) & ((D[sc, x + 1] < limit) | hc)
+    n8 = (V[sc, x + 2] != 0) & ((D[sc, x + 2] < limit) | hc)
+    return ((not n0) & (not n1) & (not n3)) | ((not n1) & (not n2) & (not n5)) | \
+        ((not n3) & (not n6) & (not n7)) | ((not n5) & (not n7) & (not n8))
+
+
+@njit(**INLINE)
+def _nearest_candidate(D, V, sa, sb, sc, x, f1):
+    """The candidate a filled pixel x takes: the nearest (0..8 row-major; ties to the
+    first in that order)."""
+    limit = D[sb, x + 1] * f1
+    hc = V[sb, x + 1] == 0
+    best = -1
+    bd = INF
+    for k in range(9):
+        s = sa if k < 3 else (sb if k < 6 else sc)
+        j = x + 1 + DX9[k]
+        dk = D[s, j]
+        if k != 4 and V[s, j] != 0 and (dk < limit or hc) and (best < 0 or dk < bd):
+            best = k
+            bd = dk
+    return best
+
+
+@njit(**INLINE)
+def _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h, wm1, hm1):
+    """fill_extrap_holes at hole (x, y): (to1 x, to1 y, depth, to0 x, to0 y), to0 zero
+    when not has0."""
+    xf = F32(x)
+    mx = smv_b(mv1[0, y, x]) * alpha
+    my = smv_b(mv1[1, y, x]) * alpha
+    sx = xf + mx
+    sy = yf + my
+    inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
+        (sy < F32(h - 0.5))
+    ix = np.int64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
+    iy = np.int64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
+    ds = sdepth_b(depth1[iy, ix])
+    do = sdepth_b(depth1[y, x])
+    bg = inside & (not (ds < do * f1))
+    vx = mx if bg else F32(0.0)
+    vy = my if bg else F32(0.0)
+    ox = F32(0.0)
+    oy = F32(0.0)
+    if has0:
+        jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
+        jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
+        ox = vx + smv_b(mv1[0, jy, jx])
+        oy = vy + smv_b(mv1[1, jy, jx])
+    return vx, vy, (ds if bg else do), ox, oy
+
+
+@njit(**INLINE)
 def _d(depth, valid, y, x):
     """Gap-fill depth: sanitised, +inf at holes."""
     return sdepth_b(depth[y, x]) if valid[y, x] else INF
@@ -52,49 +125,23 @@ def gap_fill_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, has_fb, h
             rin = (r >= 0) & (r < h)
             rr = min(max(r, 0), h - 1)
             for x in range(w):
-                vv = valid[rr, x] & rin
-                D[sl, x + 1] = sdepth_b(depth[rr, x]) if vv else INF
-                V[sl, x + 1] = np.uint8(1) if vv else np.uint8(0)
+                D[sl, x + 1], V[sl, x + 1] = _row_px(valid, depth, rr, x, rin)
             if r < ya + 1:
                 continue
             y = r - 1
             sa = (y + 2) % 3  # row y - 1
             sb = y % 3
             sc = (y + 1) % 3
-            # the 2x2-block rule for every pixel, as selects (vectorised): the candidates
-            # are the valid neighbours nearer than the limit (every valid one around a
-            # hole); a pixel is kept when one of its four 2x2 blocks holds none
+            # the 2x2-block rule for every pixel, as selects (vectorised)
             for x in range(w):
-                limit = D[sb, x + 1] * f1
-                hc = V[sb, x + 1] == 0
-                n0 = (V[sa, x] != 0) & ((D[sa, x] < limit) | hc)
-                n1 = (V[sa, x + 1] != 0) & ((D[sa, x + 1] < limit) | hc)
-                n2 = (V[sa, x + 2] != 0) & ((D[sa, x + 2] < limit) | hc)
-                n3 = (V[sb, x] != 0) & ((D[sb, x] < limit) | hc)
-                n5 = (V[sb, x + 2] != 0) & ((D[sb, x + 2] < limit) | hc)
-                n6 = (V[sc, x] != 0) & ((D[sc, x] < limit) | hc)
-                n7 = (V[sc, x + 1] != 0) & ((D[sc, x + 1] < limit) | hc)
-                n8 = (V[sc, x + 2] != 0) & ((D[sc, x + 2] < limit) | hc)
-                keep = ((not n0) & (not n1) & (not n3)) | ((not n1) & (not n2) & (not n5)) | \
-                    ((not n3) & (not n6) & (not n7)) | ((not n5) & (not n7) & (not n8))
-                fill[x] = np.uint8(0) if keep else np.uint8(1)
+                fill[x] = np.uint8(0) if _keep_px(D, V, sa, sb, sc, x, f1) else np.uint8(1)
             # the nearest candidate of the few pixels that take one (scalar; ties to the
             # first in row-major order)
             nf = 0  # filled pixels of this row (their x in fxs[:nf])
             for x in range(w):
                 if fill[x] == 0:
                     continue
-                limit = D[sb, x + 1] * f1
-                hc = V[sb, x + 1] == 0
-                best = -1
-                bd = INF
-                for k in range(9):
-                    s = sa if k < 3 else (sb if k < 6 else sc)
-                    j = x + 1 + DX9[k]
-                    dk = D[s, j]
-                    if k != 4 and V[s, j] != 0 and (dk < limit or hc) and (best < 0 or dk < bd):
-                        best = k
-                        bd = dk
+                best = _nearest_candidate(D, V, sa, sb, sc, x, f1)
                 off[nf] = best
                 fxs[nf] = x
                 nf += 1
@@ -182,9 +229,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             rin = (r >= 0) & (r < h)
             rr = min(max(r, 0), h - 1)
             for x in range(w):
-                vv = (valid[rr, x] != 0) & rin
-                D[sl, x + 1] = sdepth_b(depth[rr, x]) if vv else INF
-                V[sl, x + 1] = np.uint8(1) if vv else np.uint8(0)
+                D[sl, x + 1], V[sl, x + 1] = _row_px(valid, depth, rr, x, rin)
             if r < ya + 1:
                 continue
             y = r - 1
@@ -192,19 +237,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             sb = y % 3
             sc = (y + 1) % 3
             for x in range(w):  # the 2x2-block rule, as gap_fill_kernel
-                limit = D[sb, x + 1] * f1
-                hc = V[sb, x + 1] == 0
-                n0 = (V[sa, x] != 0) & ((D[sa, x] < limit) | hc)
-                n1 = (V[sa, x + 1] != 0) & ((D[sa, x + 1] < limit) | hc)
-                n2 = (V[sa, x + 2] != 0) & ((D[sa, x + 2] < limit) | hc)
-                n3 = (V[sb, x] != 0) & ((D[sb, x] < limit) | hc)
-                n5 = (V[sb, x + 2] != 0) & ((D[sb, x + 2] < limit) | hc)
-                n6 = (V[sc, x] != 0) & ((D[sc, x] < limit) | hc)
-                n7 = (V[sc, x + 1] != 0) & ((D[sc, x + 1] < limit) | hc)
-                n8 = (V[sc, x + 2] != 0) & ((D[sc, x + 2] < limit) | hc)
-                keep = ((not n0) & (not n1) & (not n3)) | ((not n1) & (not n2) & (not n5)) | \
-                    ((not n3) & (not n6) & (not n7)) | ((not n5) & (not n7) & (not n8))
-                fill[x] = np.uint8(0) if keep else np.uint8(1)
+                fill[x] = np.uint8(0) if _keep_px(D, V, sa, sb, sc, x, f1) else np.uint8(1)
             m = np.int32(0)  # any bit of the clean depth that differs from the plane's
             for x in range(w):
                 m |= bits(D[sb, x + 1]) ^ bits(depth[y, x])
@@ -217,17 +250,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             for x in range(w):
                 if fill[x] == 0:
                     continue
-                limit = D[sb, x + 1] * f1
-                hc = V[sb, x + 1] == 0
-                best = -1
-                bd = INF
-                for k in range(9):
-                    s = sa if k < 3 else (sb if k < 6 else sc)
-                    j = x + 1 + DX9[k]
-                    dk = D[s, j]
-                    if k != 4 and V[s, j] != 0 and (dk < limit or hc) and (best < 0 or dk < bd):
-                        best = k
-                        bd = dk
+                best = _nearest_candidate(D, V, sa, sb, sc, x, f1)
                 code[y, x] = np.int8(best)
                 nf += 1
             nrow[y + 1] = nf
@@ -321,28 +344,14 @@ def extrap_fill_kernel(mv1, depth1, to1, to0, has0, valid, depth_t, alpha, f1,
         for x in range(w):
             if valid[y, x]:
                 continue
-            xf = F32(x)
-            mx = smv_b(mv1[0, y, x]) * alpha
-            my = smv_b(mv1[1, y, x]) * alpha
-            sx = xf + mx
-            sy = yf + my
-            inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
-                (sy < F32(h - 0.5))
-            ix = np.int64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
-            iy = np.int64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
-            ds = sdepth_b(depth1[iy, ix])
-            do = sdepth_b(depth1[y, x])
-            bg = inside & (not (ds < do * f1))
-            vx = mx if bg else F32(0.0)
-            vy = my if bg else F32(0.0)
+            vx, vy, dd, ox, oy = _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h,
+                                              wm1, hm1)
             o_to1[0, y, x] = vx
             o_to1[1, y, x] = vy
-            o_depth[y, x] = ds if bg else do
+            o_depth[y, x] = dd
             if has0:
-                jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
-                jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
-                o_to0[0, y, x] = vx + smv_b(mv1[0, jy, jx])
-                o_to0[1, y, x] = vy + smv_b(mv1[1, jy, jx])
+                o_to0[0, y, x] = ox
+                o_to0[1, y, x] = oy
 
 
 @njit(**KERNEL)
@@ -367,25 +376,11 @@ def extrap_fill_inplace_kernel(mv1, depth1, to1, to0, has0, valid, depth_t, alph
         for x in range(w):
             if valid[y, x]:
                 continue
-            xf = F32(x)
-            mx = smv_b(mv1[0, y, x]) * alpha
-            my = smv_b(mv1[1, y, x]) * alpha
-            sx = xf + mx
-            sy = yf + my
-            inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
-                (sy < F32(h - 0.5))
-            ix = np.int64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
-            iy = np.int64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
-            ds = sdepth_b(depth1[iy, ix])
-            do = sdepth_b(depth1[y, x])
-            bg = inside & (not (ds < do * f1))
-            vx = mx if bg else F32(0.0)
-            vy = my if bg else F32(0.0)
+            vx, vy, dd, ox, oy = _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h,
+                                              wm1, hm1)
             to1[0, y, x] = vx
             to1[1, y, x] = vy
-            depth_t[y, x] = ds if bg else do
+            depth_t[y, x] = dd
             if has0:
-                jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
-                jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
-                to0[0, y, x] = vx + smv_b(mv1[0, jy, jx])
-                to0[1, y, x] = vy + smv_b(mv1[1, jy, jx])
+                to0[0, y, x] = ox
+                to0[1, y, x] = oy

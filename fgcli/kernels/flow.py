@@ -64,6 +64,31 @@ def _sads16(wb, cb, dy):
     return (a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15)
 
 
+@njit(inline="always", cache=True)
+def _block_window(cur, prev, oy, ox, py, px, block, search, cb, cst, wb, wst):
+    """Copy block (oy, ox) of cur into cb (row r at cst * r, flat) and the search window
+    of prev around its predicted position (oy + py, ox + px) into wb (row r at wst * r),
+    edge-replicated; the arrays' element types convert (the float kernel's buffers are
+    float32, the mpsadbw kernel's uint8)."""
+    h, w = cur.shape
+    win = block + 2 * search - 1
+    for r in range(block):
+        yy = min(oy + r, h - 1)
+        for c in range(block):
+            cb[cst * r + c] = cur[yy, min(ox + c, w - 1)]
+    x0 = ox + px - search
+    if x0 >= 0 and x0 + win <= w:  # inside: no clamping per element
+        for r in range(win):
+            yy = min(max(oy + py - search + r, 0), h - 1)
+            for c in range(win):
+                wb[wst * r + c] = prev[yy, x0 + c]
+    else:
+        for r in range(win):
+            yy = min(max(oy + py - search + r, 0), h - 1)
+            for c in range(win):
+                wb[wst * r + c] = prev[yy, min(max(x0 + c, 0), w - 1)]
+
+
 @njit(**dict(KERNEL, fastmath=SAD_MATH))
 def block_search_kernel(cur, prev, pred, block, search, out):
     """cur, prev (h, w) int32 8-bit luminances (frame 1, frame 0); pred (2, nby, nbx) int64
@@ -71,7 +96,6 @@ def block_search_kernel(cur, prev, pred, block, search, out):
     (per axis) whose SAD of the block against prev is least; ties to the smallest
     |offset| sum, then the first offset in (dy, dx) order (the reference's argmin of
     ``SAD * 64 + |dx| + |dy|``)."""
-    h, w = cur.shape
     nby = pred.shape[1]
     nbx = pred.shape[2]
     n_off = 2 * search
@@ -85,21 +109,8 @@ def block_search_kernel(cur, prev, pred, block, search, out):
             ox = bx * block
             py = pred[1, by, bx]
             px = pred[0, by, bx]
-            for r in range(block):
-                yy = min(oy + r, h - 1)
-                for c in range(block):
-                    cb[r, c] = F32(cur[yy, min(ox + c, w - 1)])
-            x0 = ox + px - search
-            if x0 >= 0 and x0 + win <= w:  # inside: no clamping per element
-                for r in range(win):
-                    yy = min(max(oy + py - search + r, 0), h - 1)
-                    for c in range(win):
-                        wb[r, c] = F32(prev[yy, x0 + c])
-            else:
-                for r in range(win):
-                    yy = min(max(oy + py - search + r, 0), h - 1)
-                    for c in range(win):
-                        wb[r, c] = F32(prev[yy, min(max(x0 + c, 0), w - 1)])
+            _block_window(cur, prev, oy, ox, py, px, block, search, cb.reshape(-1), block,
+                          wb.reshape(-1), win)
             best = I64_MAX
             bi = 0
             bj = 0
@@ -141,7 +152,6 @@ def block_search_sad_kernel(cur, prev, pred, out):
     (h, w) uint8 luminances; the SADs of each window row's sixteen offsets by SSE4.1
     mpsadbw (fgcli.kernels._intrin.sad16_rows), exact integers, so the same vectors and
     the same tie rule as the float kernel. 1080p level: 42 -> 10 ms."""
-    h, w = cur.shape
     nby = pred.shape[1]
     nbx = pred.shape[2]
     for pby in prange(nby):
@@ -154,21 +164,7 @@ def block_search_sad_kernel(cur, prev, pred, out):
             ox = bx * 8
             py = pred[1, by, bx]
             px = pred[0, by, bx]
-            for r in range(8):
-                yy = min(oy + r, h - 1)
-                for c in range(8):
-                    cb[16 * r + c] = cur[yy, min(ox + c, w - 1)]
-            x0 = ox + px - 8
-            if x0 >= 0 and x0 + 23 <= w:  # inside: no clamping per element
-                for r in range(23):
-                    yy = min(max(oy + py - 8 + r, 0), h - 1)
-                    for c in range(23):
-                        wb[24 * r + c] = prev[yy, x0 + c]
-            else:
-                for r in range(23):
-                    yy = min(max(oy + py - 8 + r, 0), h - 1)
-                    for c in range(23):
-                        wb[24 * r + c] = prev[yy, min(max(x0 + c, 0), w - 1)]
+            _block_window(cur, prev, oy, ox, py, px, 8, 8, cb, 16, wb, 24)
             best = I64_MAX
             bi = 0
             bj = 0
