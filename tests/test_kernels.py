@@ -683,6 +683,41 @@ def test_pyramid_level_and_fills(h, w):
                 fsr3.fill_vector_field(v, prio, valid))
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (36, 52), (1, 5), (5, 1), (2, 2), (64, 3)])
+@pytest.mark.parametrize("mode", ["first", "blend"])
+def test_pyramid_inpaint_dense_part(h, w, mode):
+    """The one-pass dense part (sanitised copy, cleaned weight, holes, level 1 straight
+    from the image) against the reference bit for bit: holes given or derived from the
+    weight (NaN, +-inf, negative, -0.0 and tiny weights), NaN / inf / HDR values, odd
+    edges, no holes, all holes."""
+    from fgcli.ops import pyramid
+
+    g = torch.Generator().manual_seed(h * 7 + w)
+    v = torch.randn(3, h, w, generator=g) * torch.rand(3, h, w, generator=g) * 100
+    v.view(-1)[::11] = float("nan")
+    v.view(-1)[::13] = INF
+    v.view(-1)[::17] = -INF
+    v.view(-1)[::19] = -0.0
+    v.view(-1)[::23] = 3e37
+    wt = torch.rand(1, h, w, generator=g)
+    wt.view(-1)[::5] = 0.0
+    wt.view(-1)[::6] = float("nan")
+    wt.view(-1)[::7] = -0.5
+    wt.view(-1)[::9] = INF
+    wt.view(-1)[::10] = -INF
+    wt.view(-1)[::12] = -0.0
+    wt.view(-1)[::14] = 1e-30
+    holes = torch.rand(1, h, w, generator=g) < 0.3
+    for vals, wgt, hl in ((v, wt, None), (v, wt, holes), (v[:2], wt, holes),
+                          (v, torch.ones(1, h, w), None), (v, torch.zeros(1, h, w), None),
+                          (v, wt, torch.zeros(1, h, w, dtype=torch.bool)),
+                          (v, wt, torch.ones(1, h, w, dtype=torch.bool))):
+        k = K.pyramid_inpaint(vals, wgt, hl, mode=mode)
+        r = pyramid.pyramid_inpaint(vals, wgt, hl, mode=mode)
+        same_result("pyramid_inpaint", k, r)
+        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
+
+
 # ----------------------------------------------------------------------------- dispatch, CLI
 
 def test_dispatch_and_resolve():

@@ -392,6 +392,42 @@ def test_fused_gffe_ops_match_the_reference(h, w):
         close_tree(f"{name} {h}x{w}", getattr(K, name)(*args), getattr(G, name)(*args))
 
 
+@pytest.mark.parametrize("h,w", [(5, 200), (3, 64), (2, 65), (4, 129)])
+def test_sample_where_skips_unselected_runs(h, w):
+    """The fills' bilinear read (fgcli.kernels.ops._sample_where) skips runs of 64 pixels
+    with nothing selected: the same result as where(sel, backward_warp(img, flow),
+    base or 0) and where(sel, flow, fbase or 0) with sparse, dense, empty and edge-touching
+    selections, and flow that is garbage (NaN, inf, huge) outside the selection."""
+    from fgcli.kernels.ops import _sample_where
+    from fgcli.ops.warp import backward_warp
+
+    g = torch.Generator().manual_seed(h * 1000 + w)
+    img = torch.rand(3, h, w, generator=g) * 4
+    img.view(-1)[::29] = NAN
+    img.view(-1)[::31] = INF
+    flow = torch.randn(2, h, w, generator=g) * 3
+    base = torch.rand(3, h, w, generator=g)
+    fbase = torch.randn(2, h, w, generator=g)
+    sparse = torch.zeros(1, h, w, dtype=torch.bool)
+    sparse[0, ::2, w - 1] = True  # the last run of the row only
+    sparse[0, h - 1, 0] = True
+    sparse[0, 0, min(w - 1, 64)] = True  # the first pixel of the second run
+    garbage = flow.clone()
+    garbage[:, ~sparse[0]] = torch.tensor([NAN, INF, -INF, 1e30, 5e5])[
+        torch.arange(int((~sparse[0]).sum())) % 5]
+    for sel, fl in ((sparse, garbage), (sparse, flow),
+                    (torch.rand(1, h, w, generator=g) < 0.5, flow),
+                    (torch.zeros(1, h, w, dtype=torch.bool), garbage),
+                    (torch.ones(1, h, w, dtype=torch.bool), flow)):
+        for b, fb in ((None, None), (base, None), (base, fbase)):
+            out, fout = _sample_where(img, fl, sel[0], base=b, fbase=fb)
+            warped, _ = backward_warp(img, fl, "bilinear")
+            ref = torch.where(sel, warped, b if b is not None else torch.zeros(()))
+            fref = torch.where(sel, fl, fb if fb is not None else torch.zeros(()))
+            close_tree(f"sample_where {h}x{w}", out, ref)
+            bits_equal(f"sample_where flow {h}x{w}", fout, fref)
+
+
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
 def test_background_fill_matches_the_reference(h, w):
     """The bg_project stage's op (project_background + entering_surface + the selects)."""

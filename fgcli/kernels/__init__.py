@@ -51,6 +51,7 @@ KERNEL_OPS = {
     "interpolate_fsr3": "fgcli.ops.fsr3",
     "fill_vector_field": "fgcli.ops.fsr3",
     "inpaint_color": "fgcli.ops.fsr3",
+    "pyramid_inpaint": "fgcli.ops.pyramid",
     "avg_pool2": "fgcli.ops.pyramid",
     "unpack_vector_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",

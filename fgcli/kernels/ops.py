@@ -431,18 +431,52 @@ def avg_pool2(x):
     return out
 
 
+def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e-12,
+                    pool=None):
+    """fgcli.ops.pyramid.pyramid_inpaint: the dense part (sanitised copy, cleaned weight,
+    hole mask and count, level 1 straight from the image) in one kernel, the coarser
+    levels by pool2_kernel, then the reference's sampling at the hole pixels."""
+    from fgcli.ops import pyramid as PY
+
+    ok = (_f32cpu(values) and _f32cpu(weight) and weight.shape[0] == 1
+          and weight.shape[1:] == values.shape[1:] and values.shape[1] * values.shape[2] > 1
+          and (holes is None or _boolcpu(holes, weight.shape)))
+    if not ok:
+        return PY.pyramid_inpaint(values, weight, holes, mode, decay, eps, pool=avg_pool2)
+    values, weight, holes = PY.checked_inpaint_args(values, weight, holes, mode, decay)
+    from fgcli.kernels.pyramid import inpaint_prep_kernel
+
+    c, h, w = values.shape
+    out = _empty(c, h, w)
+    hout = _empty(1, h, w, dtype=torch.bool)
+    lev1 = _empty(c + 1, (h + 1) // 2, (w + 1) // 2)
+    nh = np.empty((h + 1) // 2, dtype=np.int64)
+    ha = _u8(holes)[0] if holes is not None else _u8(hout)[0]  # (unread when not given)
+    inpaint_prep_kernel(_a(values), _a(weight)[0], ha, holes is not None, out.numpy(),
+                        _u8(hout)[0], lev1.numpy(), nh)
+    if int(nh.sum()) == 0:
+        return out, torch.zeros(1, h, w, dtype=torch.bool)
+    idx = hout.view(-1).nonzero().view(-1)
+    lev = [None, lev1]
+    while lev[-1].shape[1] > 1 or lev[-1].shape[2] > 1:
+        lev.append(avg_pool2(lev[-1]))
+    return PY.fill_from_levels(out, hout, idx, lev, mode, decay, eps)
+
+
 def fill_vector_field(vec, priority, valid):
-    """fgcli.ops.fsr3.fill_vector_field with the pyramid levels by the numba kernel."""
+    """fgcli.ops.fsr3.fill_vector_field with the inpainting's dense part and pyramid
+    levels by numba kernels."""
     from fgcli.ops import fsr3 as FS
 
-    return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2)
+    return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2, inpaint=pyramid_inpaint)
 
 
 def inpaint_color(color, holes, decay=10.0):
-    """fgcli.ops.fsr3.inpaint_color with the pyramid levels by the numba kernel."""
+    """fgcli.ops.fsr3.inpaint_color with the inpainting's dense part and pyramid levels by
+    numba kernels."""
     from fgcli.ops import fsr3 as FS
 
-    return FS.inpaint_color(color, holes, decay, pool=avg_pool2)
+    return FS.inpaint_color(color, holes, decay, pool=avg_pool2, inpaint=pyramid_inpaint)
 
 
 # ----------------------------------------------------------------------------- start-up
@@ -483,6 +517,7 @@ _GROUPS = (
      ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
                                          i["mv"])),
      ("fsr3", lambda i: avg_pool2(i["c"])),
+     ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
      ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
@@ -543,6 +578,7 @@ def _cache_cold(families=None) -> bool:
                     field.field_scatter_kernel,
                     field.depth_scatter_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
+                    pyramid.inpaint_prep_kernel,
                     field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
 

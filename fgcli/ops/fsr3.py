@@ -276,15 +276,16 @@ def unpack_vector_field(field: torch.Tensor):
 
 
 def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Tensor,
-                      pool=None):
+                      pool=None, inpaint=None):
     """FSR 3 vector-field inpainting: texels never written take the first coarser level
     of a priority-weighted mip pyramid of the written vectors that has data (bilinear taps
     weighted by priority; pyramid_inpaint mode 'first').
 
     vec (2, H, W), priority (1, H, W) int, valid (1, H, W) bool -> (vec (2, H, W),
-    filled (1, H, W) bool: had no entry and got one). An all-empty field stays 0."""
+    filled (1, H, W) bool: had no entry and got one). An all-empty field stays 0.
+    inpaint: pyramid_inpaint or a function with its signature (the numba backend's)."""
     wgt = priority.to(torch.float32) / 65535.0 * valid
-    out, filled = pyramid_inpaint(vec, wgt, ~valid, mode="first", pool=pool)
+    out, filled = (inpaint or pyramid_inpaint)(vec, wgt, ~valid, mode="first", pool=pool)
     return out, filled
 
 
@@ -657,9 +658,11 @@ def interpolated_depth(depth_t: torch.Tensor, vec: torch.Tensor, alpha: float = 
     return depth
 
 
-def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0, pool=None):
+def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0, pool=None,
+                  inpaint=None):
     """FSR 3 colour inpainting: hole pixels take pyramid_inpaint mode 'blend' of the valid
-    interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W)."""
-    out, _ = pyramid_inpaint(color, (~holes).to(torch.float32), holes, mode="blend", decay=decay,
-                             pool=pool)
+    interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W).
+    inpaint: pyramid_inpaint or a function with its signature (the numba backend's)."""
+    out, _ = (inpaint or pyramid_inpaint)(color, (~holes).to(torch.float32), holes,
+                                          mode="blend", decay=decay, pool=pool)
     return out

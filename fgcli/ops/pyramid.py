@@ -94,35 +94,50 @@ def pyramid_inpaint(values: torch.Tensor, weight: torch.Tensor,
         are 0 with filled False. Always finite. Cost: the pyramid (4/3 of one pass over the
         image) plus a gather per level at the hole pixels only.
     """
+    values, weight, holes = checked_inpaint_args(values, weight, holes, mode, decay)
+    c, h, w = values.shape
+    wclean = torch.nan_to_num(weight, nan=0.0, posinf=0.0).clamp_(min=0.0)
+    if holes is None:
+        holes = wclean <= 0
+    out = sanitize_values(values).clone()
+    dense = not reads_back(holes)  # GPU: every pixel, every level, then a select
+    idx = (torch.arange(h * w, device=values.device) if dense
+           else holes.view(-1).nonzero().view(-1))
+    if idx.numel() == 0:
+        return out, torch.zeros(1, h, w, dtype=torch.bool, device=values.device)
+    w_ = wclean.masked_fill(holes, 0.0)
+    lev = weighted_pyramid(values, w_, pool=pool)
+    return fill_from_levels(out, holes, idx, lev, mode, decay, eps, dense)
+
+
+def checked_inpaint_args(values, weight, holes, mode, decay):
+    """pyramid_inpaint's argument checks: (values, weight, holes or None)."""
     values = check_tensor(values, "values", allow_batch=False)
     weight = check_tensor(weight, "weight", 1, allow_batch=False)
     check_same(values, "values", (weight, "weight"))
     check_choice(mode, "mode", PYRAMID_MODES)
     if not (decay > 0):
         raise ValueError(f"decay: expected > 0, got {decay!r}")
-    c, h, w = values.shape
-    wclean = torch.nan_to_num(weight, nan=0.0, posinf=0.0).clamp_(min=0.0)
-    if holes is None:
-        holes = wclean <= 0
-    else:
+    if holes is not None:
         holes = check_tensor(holes, "holes", 1, allow_batch=False, dtype_kind="bool")
         check_same(values, "values", (holes, "holes"))
-    out = sanitize_values(values).clone()
-    filled = torch.zeros(1, h, w, dtype=torch.bool, device=values.device)
-    dense = not reads_back(holes)  # GPU: every pixel, every level, then a select
-    idx = (torch.arange(h * w, device=values.device) if dense
-           else holes.view(-1).nonzero().view(-1))
-    if idx.numel() == 0:
-        return out, filled
-    w_ = wclean.masked_fill(holes, 0.0)
-    lev = weighted_pyramid(values, w_, pool=pool)
+    return values, weight, holes
+
+
+def fill_from_levels(out, holes, idx, lev, mode="blend", decay=10.0, eps=1e-12,
+                     dense=False):
+    """pyramid_inpaint's second half: the hole pixels (flat indices idx, or every pixel
+    when dense) read the levels 1.. of lev (level 0 is not read: it may be None) into out
+    (C, H, W, written in place unless dense). Returns (out, filled)."""
+    c, h, w = out.shape
+    filled = torch.zeros(1, h, w, dtype=torch.bool, device=out.device)
     ys = torch.div(idx, w, rounding_mode="floor").to(torch.float32)
     xs = (idx % w).to(torch.float32)
     n = idx.numel()
-    res = torch.zeros(c, n, dtype=torch.float32, device=values.device)
-    done = torch.zeros(n, dtype=torch.bool, device=values.device)
+    res = torch.zeros(c, n, dtype=torch.float32, device=out.device)
+    done = torch.zeros(n, dtype=torch.bool, device=out.device)
     if mode == "blend":
-        acc = torch.zeros(c + 1, n, dtype=torch.float32, device=values.device)
+        acc = torch.zeros(c + 1, n, dtype=torch.float32, device=out.device)
         for i in range(1, len(lev)):
             m = max(0.0, 1.0 - i / decay) ** 3
             if m <= 0.0:
