@@ -17,6 +17,7 @@ within 1e-5 of t_b may pick the other case of Eq. 1; such pixels are excluded.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import subprocess
 import sys
@@ -569,6 +570,23 @@ def test_fsr3_scatters(h, w):
         for k, r in zip(K.reconstruct_depths(d, v, a), fsr3.reconstruct_depths(d, v, a)):
             same("depth", k, r)
     assert torch.equal(K.vector_field(c0, c1, v * 0, hi), fsr3.vector_field(c0, c1, v * 0, hi))
+    # depth reconstruction zeroes vectors shorter than 0.1 px: lengths within a few ulps of
+    # it, along the axes and the diagonal (the kernel works the length out itself)
+    if h >= 8:
+        tenth = torch.tensor(0.1)
+        steps = torch.arange(w) - w // 2
+        ax = tenth + steps * 2e-9  # float32 neighbours of 0.1 and a little beyond
+        vs = v.clone()
+        vs[0, 5], vs[1, 5] = ax, 0.0
+        vs[0, 6], vs[1, 6] = 0.0, -ax
+        vs[0, 7] = vs[1, 7] = ax / math.sqrt(2.0)
+        assert {bool(b) for b in fsr3._length(vs[:, 5:8].reshape(2, -1)) >= 0.1} == {True, False}
+        for a in (0.5, 0.3):
+            for k, r in zip(K.reconstruct_depths(d, vs * 10, a, short_mv=1.0),
+                            fsr3.reconstruct_depths(d, vs * 10, a, short_mv=1.0)):
+                same("depth (short vectors)", k, r)
+            for k, r in zip(K.reconstruct_depths(d, vs, a), fsr3.reconstruct_depths(d, vs, a)):
+                same("depth (short vectors)", k, r)
 
 
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])

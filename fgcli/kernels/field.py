@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, smv_b, sval_b
+from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
 from fgcli.kernels._intrin import fma
 from fgcli.kernels.warp import _coords
 
@@ -37,70 +37,162 @@ def _taps(px, py, h, w, thr):
     return xa, xb, ya, yb, ex * ey > thr, fx * ey > thr, ex * fy > thr, fx * fy > thr
 
 
-@njit(cache=True, nogil=True)
-def field_scatter_kernel(pos, key, dist, d, h, w, thr, steps, buf, sec):
-    """vector_field's scatter, one component. pos (2, N) float32 footprint positions; key
-    (N,) int64 primary entries of the component; dist (N,) float32 secondary walk lengths;
-    d (2, N) float32 unit steps; steps: secondary steps (0: none); buf, sec ((h+2)*(w+2),)
-    int64 zeroed -> buf = max(primary, secondary) entries (the caller crops the ring).
+_CHUNK = 2048  # sources per vectorised footprint pass
 
-    The two components are independent (each source writes both at the same taps with the
+
+@njit(**KERNEL)
+def field_scatter_kernel(pos, key0, key1, dist, d, h, w, thr, steps, buf0, buf1, sec0, sec1):
+    """vector_field's scatter, both components (one per thread: prange over the two).
+    pos (2, N) float32 footprint positions; key0, key1 (N,) int64 primary entries of the
+    components; dist (N,)
+    float32 secondary walk lengths; d (2, N) float32 unit steps; steps: secondary steps
+    (0: none); buf0, buf1, sec0, sec1 ((h+2)*(w+2),) int64 scratch (zeroed here; sec
+    unused without steps) -> buf0, buf1 = max(primary, secondary) entries of the
+    components (the caller crops the ring). One buffer per component: below glibc's mmap
+    threshold (fgcli.sysutil.tune_allocator), so a frame's buffers reuse the last frame's
+    memory instead of faulting in fresh pages (a (2, N) pair did, about 5 ms each).
+
+    The components are independent (each source writes both at the same taps with the
     same priority bits, so a texel's primary flag is the same in both: the secondary walk
-    of either counts the same hits), so the caller runs them on two threads."""
+    of either counts the same hits). The primary footprints are worked out in vectorised
+    passes over chunks of sources (slices: an index with a signed offset stops LLVM from
+    vectorising), then a plain loop takes the maxima."""
     n = pos.shape[1]
     w2 = w + 2
-    for i in range(n):
-        xa, xb, ya, yb, t00, t10, t01, t11 = _taps(pos[0, i], pos[1, i], h, w, thr)
-        a = key[i]
-        for q, t in ((ya * w2 + xa, t00), (ya * w2 + xb, t10), (yb * w2 + xa, t01),
-                     (yb * w2 + xb, t11)):
-            if t and a > buf[q]:
-                buf[q] = a
-    if steps < 1:
-        return
-    # secondary entries walk back from the footprint, counting primary texels hit
-    for i in range(n):
-        di = dist[i]
-        if not di >= F32(1.0):
+    for pc in prange(2):
+        c = np.int64(pc)
+        buf = buf0 if c == 0 else buf1
+        sec = sec0 if c == 0 else sec1
+        for q in range(buf.shape[0]):
+            buf[q] = 0
+        if steps >= 1:
+            for q in range(sec.shape[0]):
+                sec[q] = 0
+        q0 = np.empty(_CHUNK, dtype=np.int64)
+        dx = np.empty(_CHUNK, dtype=np.int64)
+        dy = np.empty(_CHUNK, dtype=np.int64)
+        k0 = np.empty(_CHUNK, dtype=np.int64)
+        k1 = np.empty(_CHUNK, dtype=np.int64)
+        k2 = np.empty(_CHUNK, dtype=np.int64)
+        k3 = np.empty(_CHUNK, dtype=np.int64)
+        for s in range(0, n, _CHUNK):
+            m = min(_CHUNK, n - s)
+            px = pos[0, s:s + m]
+            py = pos[1, s:s + m]
+            ky = key0[s:s + m] if c == 0 else key1[s:s + m]
+            for j in range(m):
+                xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px[j], py[j], h, w, thr)
+                a = ky[j]
+                q0[j] = ya * w2 + xa
+                dx[j] = xb - xa
+                dy[j] = (yb - ya) * w2
+                k0[j] = a if t00 else np.int64(0)  # entries are > 0: 0 never wins
+                k1[j] = a if t10 else np.int64(0)
+                k2[j] = a if t01 else np.int64(0)
+                k3[j] = a if t11 else np.int64(0)
+            for j in range(m):
+                q = q0[j]
+                q1 = q + dx[j]
+                q2 = q + dy[j]
+                q3 = q2 + dx[j]
+                if k0[j] > buf[q]:
+                    buf[q] = k0[j]
+                if k1[j] > buf[q1]:
+                    buf[q1] = k1[j]
+                if k2[j] > buf[q2]:
+                    buf[q2] = k2[j]
+                if k3[j] > buf[q3]:
+                    buf[q3] = k3[j]
+        if steps < 1:
             continue
-        a = key[i] - _PRIMARY
-        hits = 0
-        for k in range(1, steps + 1):
-            if not (di >= F32(k)) or hits > 3:
-                break
-            kf = F32(k)
-            qx = pos[0, i] - d[0, i] * kf
-            qy = pos[1, i] - d[1, i] * kf
-            xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-            yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
-            if xi < 1 or xi > w or yi < 1 or yi > h:
+        # secondary entries walk back from the footprint, counting primary texels hit
+        for i in range(n):
+            di = dist[i]
+            if not di >= F32(1.0):
                 continue
-            q = yi * w2 + xi
-            if buf[q] >= _PRIMARY:
-                hits += 1
-            if hits > 3:
-                continue
-            if a > sec[q]:
-                sec[q] = a
-    for q in range(buf.shape[0]):
-        if sec[q] > buf[q]:
-            buf[q] = sec[q]
+            a = (key0[i] if c == 0 else key1[i]) - _PRIMARY
+            hits = 0
+            for k in range(1, steps + 1):
+                if not (di >= F32(k)) or hits > 3:
+                    break
+                kf = F32(k)
+                qx = pos[0, i] - d[0, i] * kf
+                qy = pos[1, i] - d[1, i] * kf
+                xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+                yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+                if xi < 1 or xi > w or yi < 1 or yi > h:
+                    continue
+                q = yi * w2 + xi
+                if buf[q] >= _PRIMARY:
+                    hits += 1
+                if hits > 3:
+                    continue
+                if a > sec[q]:
+                    sec[q] = a
+        for q in range(buf.shape[0]):
+            if sec[q] > buf[q]:
+                buf[q] = sec[q]
 
 
-@njit(cache=True, nogil=True)
-def depth_scatter_kernel(pos, depth, h, w, thr, buf):
-    """reconstruct_depths' scatter for one target time: pos (2, N) float32, depth (N,)
-    float32 sanitised -> buf ((h+2)*(w+2),) float32 (+inf initialised) holds the minimum
-    depth written into each texel's footprint taps."""
-    n = pos.shape[1]
+@njit(**KERNEL)
+def depth_scatter_pair_kernel(depth, mv, short, ks, thr, bufs):
+    """reconstruct_depths' two scatters with the sources computed in the kernel (the
+    reference's depth_sources: sanitised depth, sanitised vector zeroed when shorter than
+    ``short``, position p + v * ks[t], each product and sum rounded on its own): depth
+    (H, W), mv (2, H, W), ks (2,) float32 -> bufs (2, (H+2)*(W+2)) float32 (+inf
+    initialised), the minimum depth written into each texel's footprint taps.
+
+    One target time per thread (prange over the two). Per row, the footprints are worked
+    out in vectorised loops into row buffers, then a plain loop takes the minima: the
+    float work no longer sits in the serial loop, and no torch pass runs in between
+    (torch's idle OpenMP threads spin for a while after each op and slowed a second
+    Python thread by half)."""
+    h, w = depth.shape
     w2 = w + 2
-    for i in range(n):
-        xa, xb, ya, yb, t00, t10, t01, t11 = _taps(pos[0, i], pos[1, i], h, w, thr)
-        z = depth[i]
-        for q, t in ((ya * w2 + xa, t00), (ya * w2 + xb, t10), (yb * w2 + xa, t01),
-                     (yb * w2 + xb, t11)):
-            if t and z < buf[q]:
-                buf[q] = z
+    inf = F32(np.inf)
+    for pt in prange(2):
+        t = np.int64(pt)
+        k = ks[t]
+        q0 = np.empty(w, dtype=np.int64)
+        dx = np.empty(w, dtype=np.int64)
+        dy = np.empty(w, dtype=np.int64)
+        z0 = np.empty(w, dtype=np.float32)
+        z1 = np.empty(w, dtype=np.float32)
+        z2 = np.empty(w, dtype=np.float32)
+        z3 = np.empty(w, dtype=np.float32)
+        for y in range(h):
+            yf = F32(y)
+            dr = depth[y]
+            mx = mv[0, y]
+            my = mv[1, y]
+            for x in range(w):
+                vx = smv_b(mx[x])
+                vy = smv_b(my[x])
+                keep = F32(1.0) if np.sqrt(vx * vx + vy * vy) >= short else F32(0.0)
+                px = F32(x) + (vx * keep) * k
+                py = yf + (vy * keep) * k
+                xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px, py, h, w, thr)
+                z = sdepth_b(dr[x])
+                q0[x] = ya * w2 + xa
+                dx[x] = xb - xa
+                dy[x] = (yb - ya) * w2
+                z0[x] = z if t00 else inf
+                z1[x] = z if t10 else inf
+                z2[x] = z if t01 else inf
+                z3[x] = z if t11 else inf
+            for x in range(w):
+                q = q0[x]
+                q1 = q + dx[x]
+                q2 = q + dy[x]
+                q3 = q2 + dx[x]
+                if z0[x] < bufs[t, q]:
+                    bufs[t, q] = z0[x]
+                if z1[x] < bufs[t, q1]:
+                    bufs[t, q1] = z1[x]
+                if z2[x] < bufs[t, q2]:
+                    bufs[t, q2] = z2[x]
+                if z3[x] < bufs[t, q3]:
+                    bufs[t, q3] = z3[x]
 
 
 # ----------------------------------------------------------------------------- entries

@@ -576,7 +576,7 @@ def _cache_cold(families=None) -> bool:
             kernels += (flow.block_search_sad_kernel,)
         kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
                     field.field_scatter_kernel,
-                    field.depth_scatter_kernel, fsr3.disocclusion_kernel,
+                    field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel,
                     field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
@@ -789,7 +789,7 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
 
     vf, pos, keys, (h, w, a) = _field_entries(color0, color1, vec, hi, alpha)
     n = (h + 2) * (w + 2)
-    buf = np.zeros((2, n), dtype=np.int64)
+    buf = [np.empty(n, dtype=np.int64) for _ in range(2)]  # (zeroed by the kernel)
     steps = 0
     dist = d = np.zeros((2, 1), dtype=np.float32)
     if secondary and max_secondary > 0 and vf.shape[1]:
@@ -798,28 +798,33 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
         if steps >= 1:
             d = _a(vf / dt.clamp(min=1e-6))
             dist = _a(dt)
-    sec = np.zeros((2, n), dtype=np.int64) if steps >= 1 else buf[:, :1]
-    pos_a, dist = _a(pos), dist.reshape(-1)
-    # the components are independent serial scatters: one thread each (nogil kernels)
-    _both(lambda c: field_scatter_kernel(pos_a, _a(keys[c]), dist, d, h, w,
-                                         F32(tap_threshold), steps, buf[c], sec[c]))
-    return FS._crop(torch.from_numpy(buf), h, w).clone()
+    sec = [np.empty(n if steps >= 1 else 1, dtype=np.int64) for _ in range(2)]
+    # the components are independent scatters: one thread each
+    field_scatter_kernel(_a(pos), _a(keys[0]), _a(keys[1]), dist.reshape(-1), d, h, w,
+                         F32(tap_threshold), steps, buf[0], buf[1], sec[0], sec[1])
+    out = torch.stack([FS._crop(torch.from_numpy(b), h, w)[0] for b in buf])
+    return out
 
 
 def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
-    """fgcli.ops.fsr3.reconstruct_depths with the two footprint scatters in numba."""
+    """fgcli.ops.fsr3.reconstruct_depths: the sources and both footprint scatters in one
+    numba kernel."""
     from fgcli.ops import fsr3 as FS
 
-    if not _cpu(depth, mv):
+    if not (_cpu(depth, mv) and depth.dtype == torch.float32 and mv.dtype == torch.float32
+            and depth.shape[0] == 1 and mv.shape[0] == 2 and depth.shape[1:] == mv.shape[1:]
+            and depth.numel() > 0):
         return FS.reconstruct_depths(depth, mv, alpha, short_mv, tap_threshold)
-    from fgcli.kernels.field import depth_scatter_kernel
+    from fgcli.kernels.field import depth_scatter_pair_kernel
 
-    d, pos, (h, w) = FS.depth_sources(depth, mv, alpha, short_mv)
-    bufs = [np.full((h + 2) * (w + 2), np.inf, dtype=np.float32) for _ in pos]
-    da = _a(d)
-    # the two target times are independent serial scatters: one thread each
-    _both(lambda k: depth_scatter_kernel(_a(pos[k]), da, h, w, F32(tap_threshold), bufs[k]))
-    return tuple(FS._crop(torch.from_numpy(b)[None], h, w).clone() for b in bufs)
+    a = check_alpha(alpha)
+    h, w = depth.shape[-2:]
+    bufs = np.full((2, (h + 2) * (w + 2)), np.inf, dtype=np.float32)
+    ks = np.array([1.0, 1.0 - a], dtype=np.float32)  # torch rounds the scalars so
+    depth_scatter_pair_kernel(_a(depth)[0], _a(mv), F32(short_mv), ks, F32(tap_threshold),
+                              bufs)
+    out = FS._crop(torch.from_numpy(bufs), h, w)  # (2, H, W)
+    return out[0:1].clone(), out[1:2].clone()
 
 
 # ----------------------------------------------------------------------------- gffe
