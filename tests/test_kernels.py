@@ -701,6 +701,38 @@ def test_pyramid_level_and_fills(h, w):
                 fsr3.fill_vector_field(v, prio, valid))
 
 
+@pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 1)])
+def test_luma8_is_the_reference(h, w):
+    """FfxOpticalFlow's 8-bit luminance: the kernels around torch's own pow give the
+    reference's values bit for bit: every rounding boundary k + 1/2 of 255 sRGB(Y) hit
+    from both sides, the linear segment and its threshold, NaN / inf / negative / -0.0 /
+    HDR colours."""
+    from fgcli.ops import color as C
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(h + w)
+    n = h * w
+    c = torch.rand(3, h, w, generator=g)
+    # grey values whose encoding lies within a few ulps of each rounding boundary
+    k = torch.arange(256, dtype=torch.float64)
+    lin = C.srgb_eotf(((k + 0.5) / 255.0).clamp(max=1.0).to(torch.float32)).to(torch.float32)
+    near = torch.cat([torch.nextafter(lin, torch.full_like(lin, s)) for s in (-1.0, 2.0)] +
+                     [lin, lin * 1.0000002, lin * 0.9999998,
+                      torch.tensor([0.0031308, 0.0031307, 0.0031309, 1.0, 0.99999994])])
+    m = min(n, near.numel())
+    flat = c.view(3, -1)
+    flat[:, :m] = near[:m]  # grey: Y == the value up to the luma weights' rounding
+    specials = torch.tensor([[NAN, INF, -INF, -0.0, -1.0, 1e30, -1e30, 5.0],
+                             [0.0, 0.0, 0.0, -0.0, 0.5, 1e30, 0.2, 0.0],
+                             [0.0, 0.0, INF, -0.0, 0.5, 1e30, 0.2, -INF]])
+    q = min(n - m, specials.shape[1])
+    flat[:, m:m + q] = specials[:, :q]
+    k_out, r_out = K.luma8(c), fsr3.luma8(c)
+    assert torch.equal(k_out.view(torch.int32), r_out.view(torch.int32))
+    if n >= 600:  # the boundaries were hit: both neighbours of some k + 1/2
+        assert len(set(r_out.view(-1)[:m].tolist())) > 200
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (36, 52), (1, 5), (5, 1), (2, 2), (64, 3)])
 @pytest.mark.parametrize("mode", ["first", "blend"])
 def test_pyramid_inpaint_dense_part(h, w, mode):

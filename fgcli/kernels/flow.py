@@ -14,6 +14,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import F32, KERNEL
 from fgcli.kernels._intrin import sad16_rows
+from fgcli.kernels.field import _lum
 
 I64_MAX = np.int64((1 << 63) - 1)
 # exact for sums of integers below 2**24 (see the module docstring); nothing else here
@@ -213,3 +214,40 @@ def vector_median3_kernel(f, out):
                     best = i
             out[0, y, x] = vx[best]
             out[1, y, x] = vy[best]
+
+
+# ----------------------------------------------------------------------------- luma8
+
+@njit(**KERNEL)
+def luma_clip_kernel(color, t, c, p):
+    """fgcli.ops.fsr3.luma8's first part: c = clip(luminance(sanitize_values(color)), 0, 1)
+    (NaN -> 0, +inf -> 1, -inf -> 0 first, as _clip01) and p = max(c, t), the power
+    branch's input. (H, W) outputs."""
+    h, w = c.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            v = _lum(color, y, x)
+            v = F32(0.0) if v != v else v
+            v = F32(1.0) if v > F32(1.0) else v  # (+inf -> 1)
+            v = F32(0.0) if v < F32(0.0) else v  # (-inf -> 0)
+            c[y, x] = v
+            p[y, x] = t if v < t else v
+
+
+@njit(**KERNEL)
+def luma_encode_kernel(p, c):
+    """luma8's last part, in place on c: round(255 clamp(min((p - 1) 0.055 + p, 12.92 c),
+    0, 1)) with p = max(c, t)^(1/2.4) from torch (each product and sum rounded on its
+    own, as the reference's in-place ops)."""
+    h, w = c.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            pv = p[y, x]
+            hi = (pv - F32(1.0)) * F32(0.055) + pv
+            lo = c[y, x] * F32(12.92)
+            m = hi if hi < lo else lo
+            m = F32(0.0) if m < F32(0.0) else m
+            m = F32(1.0) if m > F32(1.0) else m
+            c[y, x] = np.rint(m * F32(255.0))

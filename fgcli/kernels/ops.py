@@ -518,6 +518,7 @@ _GROUPS = (
                                          i["mv"])),
      ("fsr3", lambda i: avg_pool2(i["c"])),
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
+     ("fsr3", lambda i: luma8(i["c"])),
      ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
      ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
@@ -578,7 +579,7 @@ def _cache_cold(families=None) -> bool:
                     field.field_scatter_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
-                    pyramid.inpaint_prep_kernel,
+                    pyramid.inpaint_prep_kernel, flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
 
@@ -712,32 +713,22 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
                                subpixel, pool=avg_pool2, median3=_median3)
 
 
-def _both(fn) -> None:
-    """fn(0) and fn(1) at once: fn(1) on a second thread (the serial scatter kernels are
-    nogil), fn(0) on this one; one after the other on a 1-core machine."""
-    import os
-    import threading
+def luma8(color):
+    """fgcli.ops.fsr3.luma8: the luminance, its clip and the power branch's clamp in one
+    kernel, torch's own pow (the reference's call, so the same values), the rest of the
+    sRGB encoding and the rounding in a second kernel; 3 passes instead of about 12."""
+    from fgcli.ops import fsr3 as FS
 
-    if (os.cpu_count() or 1) < 2:
-        fn(0)
-        fn(1)
-        return
-    err = []
+    if not (_f32cpu(color) and color.shape[0] == 3):
+        return FS.luma8(color)
+    from fgcli.kernels.flow import luma_clip_kernel, luma_encode_kernel
 
-    def second():
-        try:
-            fn(1)
-        except BaseException as e:  # noqa: BLE001 - re-raised on the caller's thread
-            err.append(e)
-
-    t = threading.Thread(target=second, daemon=True)
-    t.start()
-    try:
-        fn(0)
-    finally:
-        t.join()
-    if err:
-        raise err[0]
+    h, w = color.shape[-2:]
+    c, p = _empty(1, h, w), _empty(1, h, w)
+    luma_clip_kernel(_a(color), F32(0.0031308), c.numpy()[0], p.numpy()[0])
+    p.pow_(1.0 / 2.4)
+    luma_encode_kernel(p.numpy()[0], c.numpy()[0])  # in place: c becomes the result
+    return c
 
 
 def _field_entries(color0, color1, vec, hi, alpha):

@@ -132,7 +132,7 @@ class FSR3OpticalFlow(Stage):
     def run(self, ctx):
         from fgcli.ops._util import all_set, reads_back
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import dis_flow, luma8, magnitude_priority, upsample_block_flow
+        from fgcli.ops.fsr3 import dis_flow, magnitude_priority, upsample_block_flow
 
         c0, c1 = ctx["color0"], ctx["color1"]
         h, w = c1.shape[-2:]
@@ -150,8 +150,8 @@ class FSR3OpticalFlow(Stage):
             f, hi = memo["f"], memo["hi"]
         else:
             l0 = memo["luma"][1] if memo is not None and memo.get("luma", (None,))[0] == \
-                (n0, key[2]) else luma8(c0)  # frame 0 was the last pair's frame 1
-            l1 = luma8(c1)
+                (n0, key[2]) else op("luma8", ctx)(c0)  # frame 0 was the last pair's frame 1
+            l1 = op("luma8", ctx)(c1)
             f = dis_flow(l0, l1) if self.flow == "dis" else \
                 op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
                                       self.subpixel)
