@@ -428,14 +428,21 @@ def test_sample_where_skips_unselected_runs(h, w):
             bits_equal(f"sample_where flow {h}x{w}", fout, fref)
 
 
-@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51), (15, 200)])
 def test_background_fill_matches_the_reference(h, w):
-    """The bg_project stage's op (project_background + entering_surface + the selects)."""
+    """The bg_project stage's op (project_background + entering_surface + the selects);
+    sparse holes too (runs of 64 pixels without one pass through, and only the cells the
+    holes read are splatted, at full and half layer size), one at an odd last column and
+    row (the half-size cell of a 1-pixel-wide block)."""
     f = _hard_frames(h, w, h * 100 + w + 7)
     traj, dyn = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"], k=3)
     wp = G.warp_positions(f["c1"], G.estimate_positions(traj, 0.5), f["cam_x"])
+    sparse = torch.ones(1, h, w, dtype=torch.bool)
+    sparse[0, ::4, ::37] = False
+    sparse[0, h - 1, w - 1] = False
     frames = [(wp["color"], wp["depth"], wp["mv"], wp["valid"]),
-              (f["ch"], f["dh"], f["mh"], ~f["holes"])]
+              (f["ch"], f["dh"], f["mh"], ~f["holes"]),
+              (f["ch"], f["dh"], f["mh"], sparse)]
     for sc in (1, 2):
         prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"], layer1_scale=sc)
         layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"],
@@ -448,6 +455,33 @@ def test_background_fill_matches_the_reference(h, w):
                                  f["mh"], a, ent, em)
                     same_tree(f"background_fill {h}x{w} {sc} {filt} {ent} {em} {a} {i}",
                               K.background_fill(*args), G.background_fill(*args))
+
+
+@pytest.mark.parametrize("sc", [1, 2])
+def test_background_fill_sparse_holes_match_the_reference(sc):
+    """Sparse holes over well-covered layers (so that most holes are filled): runs of 64
+    pixels without a hole pass through, and only the layer cells the holes read are
+    splatted (layer 1 at half size: the 2 x 2 block of a cell, odd last row and column)."""
+    h, w = 15, 203
+    f = _hard_frames(h, w, 11)
+    g = torch.Generator().manual_seed(5)
+    h2, w2 = (h, w) if sc == 1 else G._half(h, w)
+    layers = []
+    for lh, lw, dz in ((h, w, 4.0), (h2, w2, 9.0)):
+        layers.append({"color": torch.rand(3, lh, lw, generator=g),
+                       "depth": dz + torch.rand(1, lh, lw, generator=g),
+                       "valid": torch.rand(1, lh, lw, generator=g) < 0.9})
+    sparse = torch.ones(1, h, w, dtype=torch.bool)
+    sparse[0, 1::4, 1::37] = False  # odd rows and columns: the second pixel of a cell
+    sparse[0, 2, 70:75] = False
+    sparse[0, h - 1, w - 1] = False
+    for filt in ("nearest", "bilinear"):
+        args = (f["ch"], f["dh"], f["mh"], sparse, layers, f["cam1"], f["cam1"], filt,
+                f["ch"], f["dh"], f["mh"], 0.5, True, True)
+        k, r = K.background_fill(*args), G.background_fill(*args)
+        same_tree(f"background_fill sparse {sc} {filt}", k, r)
+        filled = int((r[3] & ~sparse).sum())
+        assert filled >= 0.7 * int((~sparse).sum()), filled  # the holes did take fragments
 
 
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])

@@ -222,7 +222,7 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
 # ----------------------------------------------------------------------------- background
 
 @njit(**KERNEL)
-def splat_min_kernel(px, py, sc, dn, use, h, w, buf, src, dep):
+def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
     """_splat_min of fragments (any grid) at target cells (floor(px / sc), floor(py / sc))
     of an (h, w) grid: buf (h * w) int64 scratch; src (h, w) int64 winning flat source
     index or -1, dep (h, w) its depth (+inf empty). Keys as the reference packs them:
@@ -233,7 +233,11 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, buf, src, dep):
     ones, and a fragment whose target row lies within half a band of its own band takes a
     plain read-compare-write; any other (and every fragment of another grid) an atomic
     minimum in a last pass. Unused fragments write nothing (the reference sends them to a
-    dropped extra cell). The minimum is unique: the result never depends on timing."""
+    dropped extra cell). The minimum is unique: the result never depends on timing.
+
+    has_want: only target cells with want (h * w,) uint8 set are splatted (the others come
+    out empty). For a caller that reads the result at those cells only (the holes of
+    background_fill) it is the same there, and the scatter skips the rest."""
     hs, ws = dn.shape
     n = h * w
     hm1 = F32(h - 1)
@@ -266,6 +270,8 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, buf, src, dep):
                     inside = (use[y, x] != U0) & (tx >= ZERO) & (tx < wf) & (ty >= ZERO) & \
                         (ty < hf)
                     q = np.int64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
+                    inside = inside & ((want[q if has_want else np.int64(0)] != U0) |
+                                       (not has_want))
                     qs[x] = q if inside else np.int64(-1)
                     ks[x] = (np.int64(np.float32(d).view(np.int32)) << 32) | (y * ws + x)
                 for x in range(ws):
@@ -355,6 +361,70 @@ def _nan_inf_b(v):
     return INF if v != v else r
 
 
+@njit(**INLINE)
+def _entering_px(mv1, depth1, a, behind, entering, x, y, yh, wf, hf, wm1, hm1, w):
+    """entering_surface's test at (x, y): 1 where the surface goes off-screen (or, behind,
+    comes from behind a nearer one) and is nearer than ``dlim`` allows, else 0."""
+    xh = F32(x) + HALF
+    m0 = smv_b(mv1[0, y, x])
+    m1 = smv_b(mv1[1, y, x])
+    sx = xh + a * m0
+    sy = yh + a * m1
+    off = (sx < ZERO) | (sx >= wf) | (sy < ZERO) | (sy >= hf)
+    dq = _nan_inf_b(depth1[y, x])
+    ix = np.floor(sx)
+    iy = np.floor(sy)
+    inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
+    j = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+    jy = _div(j, w)
+    jx = j - jy * w
+    ds = _nan_inf_b(depth1[jy, jx])
+    off = off | (behind & inside & (ds < dq * KEEP3))
+    return ONE if (entering & off & (dq > ZERO)) else ZERO
+
+
+@njit(**INLINE)
+def _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, mv, valid,
+                color1, depth1, tk, out_c, out_d, out_m, out_v, code, x, y, yy, yh, w, w2):
+    """bg_fill_kernel at (x, y), tk: _entering_px's value there."""
+    xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
+    xh = F32(x) + HALF
+    sa = s0[y, x]
+    da = d0[y, x]
+    sb = s1[yy, xx]
+    db = d1[yy, xx]
+    h0 = sa >= 0
+    h1 = sb >= 0
+    t1 = h1 & ((not h0) | (db < da))
+    t0 = h0 & (not t1)
+    ac = max(sa, np.int64(0))
+    bc = max(sb, np.int64(0))
+    ay = _div(ac, w)
+    ax = ac - ay * w
+    by = _div(bc, w2)
+    bx = bc - by * w2
+    f = (valid[y, x] == U0) & (t0 | t1)
+    dsel = db if t1 else da
+    dq = _nan_inf_b(depth1[y, x])
+    take = f & (tk != ZERO) & (dq < dsel)
+    for k in range(3):
+        c = col1[k, by, bx] if t1 else col0[k, ay, ax]
+        c = c if f else color[k, y, x]
+        out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
+    dd = dsel if f else depth[y, x]
+    out_d[y, x] = dq if take else dd
+    mx = (((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)) - xh
+    my = (((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)) - yh
+    mx = mx if f else mv[0, y, x]
+    my = my if f else mv[1, y, x]
+    out_m[0, y, x] = ZERO if take else mx
+    out_m[1, y, x] = ZERO if take else my
+    out_v[y, x] = np.uint8(1) if (f | (valid[y, x] != U0)) else U0
+    rd = f & (not take)
+    c0 = np.uint8(1) if (rd & t0 & bil0) else U0
+    code[y, x] = np.uint8(2) if (rd & t1 & bil1) else c0
+
+
 @njit(**KERNEL)
 def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, mv,
                    valid, color1, depth1, mv1, a, entering, behind, out_c, out_d, out_m,
@@ -363,7 +433,11 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
     layers on the holes ~valid), entering_surface's test (with ``entering``; its ``behind``
     case with ``behind``: frame 1's depth read at the pixel containing q + a * mv1(q)) and
     the stage's selects, in one pass; code marks the filled pixels (not taken by the
-    entering surface) whose colour bg_bilinear_kernel then replaces in out_c."""
+    entering surface) whose colour bg_bilinear_kernel then replaces in out_c.
+
+    Only holes change: a run of SPAN pixels without one passes colour, depth and vectors
+    through (valid, code 0) and reads neither the splats nor frame 1, which is also why
+    background_fill splats the cells its holes read only."""
     h, w = s0.shape
     w2 = s1.shape[1]
     wf = F32(w)
@@ -374,63 +448,48 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
         y = np.int64(pr)
         yy = (y >> 1) if sc2 else y
         yh = F32(y) + HALF
-        tk = np.empty(w, dtype=np.float32)
-        # entering_surface's test (its own gather loop), 1 where the surface goes off-screen
-        # (or, behind, comes from behind a nearer one) and is nearer than ``dlim`` allows
-        for x in range(w):
-            xh = F32(x) + HALF
-            m0 = smv_b(mv1[0, y, x])
-            m1 = smv_b(mv1[1, y, x])
-            sx = xh + a * m0
-            sy = yh + a * m1
-            off = (sx < ZERO) | (sx >= wf) | (sy < ZERO) | (sy >= hf)
-            dq = _nan_inf_b(depth1[y, x])
-            ix = np.floor(sx)
-            iy = np.floor(sy)
-            inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
-            j = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
-            jy = _div(j, w)
-            jx = j - jy * w
-            ds = _nan_inf_b(depth1[jy, jx])
-            off = off | (behind & inside & (ds < dq * KEEP3))
-            tk[x] = ONE if (entering & off & (dq > ZERO)) else ZERO
-        for x in range(w):
-            xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
-            xh = F32(x) + HALF
-            sa = s0[y, x]
-            da = d0[y, x]
-            sb = s1[yy, xx]
-            db = d1[yy, xx]
-            h0 = sa >= 0
-            h1 = sb >= 0
-            t1 = h1 & ((not h0) | (db < da))
-            t0 = h0 & (not t1)
-            ac = max(sa, np.int64(0))
-            bc = max(sb, np.int64(0))
-            ay = _div(ac, w)
-            ax = ac - ay * w
-            by = _div(bc, w2)
-            bx = bc - by * w2
-            f = (valid[y, x] == U0) & (t0 | t1)
-            dsel = db if t1 else da
-            dq = _nan_inf_b(depth1[y, x])
-            take = f & (tk[x] != ZERO) & (dq < dsel)
-            for k in range(3):
-                c = col1[k, by, bx] if t1 else col0[k, ay, ax]
-                c = c if f else color[k, y, x]
-                out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
-            dd = dsel if f else depth[y, x]
-            out_d[y, x] = dq if take else dd
-            mx = (((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)) - xh
-            my = (((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)) - yh
-            mx = mx if f else mv[0, y, x]
-            my = my if f else mv[1, y, x]
-            out_m[0, y, x] = ZERO if take else mx
-            out_m[1, y, x] = ZERO if take else my
-            out_v[y, x] = np.uint8(1) if (f | (valid[y, x] != U0)) else U0
-            rd = f & (not take)
-            c0 = np.uint8(1) if (rd & t0 & bil0) else U0
-            code[y, x] = np.uint8(2) if (rd & t1 & bil1) else c0
+        tk = np.empty(SPAN, dtype=np.float32)
+        for xs in range((w + SPAN - 1) // SPAN):
+            xa = np.int64(xs) * SPAN
+            n = min(SPAN, w - xa)
+            m = U0
+            for i in range(n):
+                m |= np.uint8(1) if valid[y, xa + i] == U0 else U0
+            if m == U0:
+                for i in range(n):
+                    x = xa + i
+                    for k in range(3):
+                        out_c[k, y, x] = color[k, y, x]
+                    out_d[y, x] = depth[y, x]
+                    out_m[0, y, x] = mv[0, y, x]
+                    out_m[1, y, x] = mv[1, y, x]
+                    out_v[y, x] = np.uint8(1)
+                    code[y, x] = U0
+                continue
+            # entering_surface's test (its own gather loop)
+            for i in range(n):
+                tk[i] = _entering_px(mv1, depth1, a, behind, entering, xa + i, y, yh, wf, hf,
+                                     wm1, hm1, w)
+            for i in range(n):
+                _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth,
+                            mv, valid, color1, depth1, tk[i], out_c, out_d, out_m, out_v,
+                            code, xa + i, y, yy, yh, w, w2)
+
+
+@njit(**KERNEL)
+def cells_of_kernel(holes, want):
+    """want (h2, w2) uint8 = 1 where the 2 x 2 block of full pixels a half-size cell covers
+    (rows 2y, 2y + 1, columns 2x, 2x + 1, within holes (H, W) uint8) holds a hole."""
+    H, W = holes.shape
+    h2, w2 = want.shape
+    for pq in prange(h2):
+        q = np.int64(pq)
+        y0 = 2 * q
+        y1 = min(y0 + 1, H - 1)
+        for x in range(w2):
+            x0 = 2 * np.int64(x)
+            x1 = min(x0 + 1, W - 1)
+            want[q, x] = holes[y0, x0] | holes[y0, x1] | holes[y1, x0] | holes[y1, x1]
 
 
 @njit(**INLINE)

@@ -589,7 +589,8 @@ def _cache_cold(families=None) -> bool:
                     gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                     gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
-                    gffe.bg_fill_kernel, gffe.hist_test_kernel, gffe.hist_match_kernel,
+                    gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_test_kernel,
+                    gffe.hist_match_kernel,
                     gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
@@ -955,9 +956,10 @@ def _warm_gffe(d) -> None:
     warp_positions(c, p, cam)
     layers = collect_background(c, d, v, cam, layer1_scale=1)
     layers = collect_background(c, d, v, cam, layers, cam, layer1_scale=1)
-    collect_background(c, d, v, cam, layers, cam, layer1_scale=2)
+    half = collect_background(c, d, v, cam, layers, cam, layer1_scale=2)
     project_background(layers, cam, cam, ~v, "bilinear")
     background_fill(c, d, mv, v, layers, cam, cam, "bilinear", c, d, mv, 0.5, True, True)
+    background_fill(c, d, mv, v, half, cam, cam, "nearest")  # (half-size layer 1)
     push_pull_fill(c, v, d)
     reproject_fill(c, v, d, c, d, cam, cam)
     fill_holes(c, d, mv, v, 0.1, "reproject", "clamp", True, c, d, cam, cam)
@@ -1143,17 +1145,19 @@ def dilated_positions(traj, depth1, cam1, dynamic, alpha, motion="linear", geom=
     return out
 
 
-def _splat_min(px, py, sc, dn, use, h, w):
+def _splat_min(px, py, sc, dn, use, h, w, want=None):
     """fgcli.ops.gffe._splat_min(floor(px / sc), floor(py / sc), dn, use, h, w) by one
-    kernel (px / 1.0 is px itself)."""
+    kernel (px / 1.0 is px itself). want: an (h, w) uint8 array; only those target cells
+    are splatted (the result elsewhere: empty), for callers that read no other."""
     from fgcli.kernels.gffe import splat_min_kernel
 
     src, dep = _empty(h, w, dtype=torch.int64), _empty(h, w)
     buf = np.empty(h * w, dtype=np.int64)
     hs, ws = dn.shape[-2:]
+    wa = want.reshape(-1) if want is not None else np.zeros(1, dtype=np.uint8)
     splat_min_kernel(_a(px).reshape(hs, ws), _a(py).reshape(hs, ws), F32(sc),
-                     _a(dn).reshape(hs, ws), _u8(use).reshape(hs, ws), h, w, buf,
-                     src.numpy(), dep.numpy())
+                     _a(dn).reshape(hs, ws), _u8(use).reshape(hs, ws), h, w, wa,
+                     want is not None, buf, src.numpy(), dep.numpy())
     return src, dep
 
 
@@ -1164,14 +1168,24 @@ def _layer_ok(layer, shape) -> bool:
             and _boolcpu(v, (1,) + tuple(shape)))
 
 
-def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2):
+def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes=None):
     """Both background layers' fragments seen from cam_x, nearest-depth splatted: (source
     index, depth) of layer 0 at H x W and of layer 1 at h2 x w2 (layer scale sc), and the
-    fragments' positions (px0, py0, px1, py1) for _read_layers_bilinear."""
+    fragments' positions (px0, py0, px1, py1) for _read_layers_bilinear. holes: an (H, W)
+    uint8 array; only the cells a hole reads are splatted (the rest comes out empty)."""
+    want0 = want1 = None
+    if holes is not None:
+        from fgcli.kernels.gffe import cells_of_kernel
+
+        want0 = holes
+        want1 = holes
+        if (h2, w2) != (H, W):
+            want1 = np.empty((h2, w2), dtype=np.uint8)
+            cells_of_kernel(holes, want1)
     px, py, dn, fok = G._layer_fragments(layers[0], cam_bg, cam_x, (H, W), 1.0, GEOM)
-    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W)
+    s0, d0 = _splat_min(px, py, 1.0, dn, fok, H, W, want0)
     px1, py1, dn1, fok1 = G._layer_fragments(layers[1], cam_bg, cam_x, (H, W), sc, GEOM)
-    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2)
+    s1, d1 = _splat_min(px1, py1, sc, dn1, fok1, h2, w2, want1)
     return s0, d0, s1, d1, (px, py, px1, py1)
 
 
@@ -1297,7 +1311,10 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
     from fgcli.kernels.gffe import bg_fill_kernel
 
     l0, l1 = layers
-    s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2)
+    # bg_fill_kernel reads the splats at the holes only: splat those cells alone
+    holes = np.empty((H, W), dtype=np.uint8)
+    np.equal(_u8(valid)[0], 0, out=holes.view(np.bool_))
+    s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes)
     bil0 = filter == "bilinear"
     bil1 = bil0 and sc == 1.0
     c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
