@@ -1089,7 +1089,7 @@ def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True,
     offsets_kernel(px.numpy(), py.numpy(), _u8(ok), disp.numpy())
     res = splat_motion(dn[None], disp, None, 1.0, model="linear", mode="extrap")
     if crack_fill:
-        res = gap_fill(res, 0.01, "nearest")
+        res = gap_fill(res, 0.01, "nearest", in_place=True)  # (res: this call's own scratch)
     col, mv = _sample_where(color1, res.to1, res.valid)
     return {"color": col, "depth": res.depth, "mv": mv, "valid": res.valid}
 
