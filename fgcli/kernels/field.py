@@ -228,8 +228,20 @@ def _pack(prio, comp):
 
 
 @njit(**KERNEL)
-def entries_kernel(c0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
-    """fgcli.ops.fsr3.field_entries per pixel: frame 0's luminance read bilinearly at
+def luma_plane_kernel(c, out):
+    """out (H, W) = sanitize_values(luminance(sanitize_values(c))): the value the entries'
+    bilinear read takes at each tap."""
+    h, w = out.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            out[y, x] = sval_b(_lum(c, y, x))
+
+
+@njit(**KERNEL)
+def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
+    """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
+    so a tap is one gather, not three): frame 0's luminance read bilinearly at
     p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
     luminance at p, the packed primary entries of both components (keys (2, H, W) int64)
     and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha)."""
@@ -255,10 +267,8 @@ def entries_kernel(c0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
             zero = (vx == F32(0.0)) & (vy == F32(0.0))
             y0, x0, y1, x1, nw, ne, sw, se = _coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
                                                      hm1, w, h)
-            r = fma(sval_b(_lum(c0, y1, x1)), se,
-                    fma(sval_b(_lum(c0, y1, x0)), sw,
-                        fma(sval_b(_lum(c0, y0, x1)), ne, sval_b(_lum(c0, y0, x0)) * nw)))
-            s0[x] = sval_b(_lum(c0, y, x)) if zero else r
+            r = fma(l0[y1, x1], se, fma(l0[y1, x0], sw, fma(l0[y0, x1], ne, l0[y0, x0] * nw)))
+            s0[x] = l0[y, x] if zero else r
         for x in range(w):
             vx = smv_b(vec[0, y, x])
             vy = smv_b(vec[1, y, x])

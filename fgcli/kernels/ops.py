@@ -580,7 +580,8 @@ def _cache_cold(families=None) -> bool:
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, flow.luma_clip_kernel, flow.luma_encode_kernel,
-                    field.entries_kernel, field.unpack_kernel, fsr3.interp_depth_kernel)
+                    field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
+                    fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
 
     if "gffe" in fams:
@@ -741,12 +742,14 @@ def _field_entries(color0, color1, vec, hi, alpha):
         vf, pos, _, _, keys, hwa = FS.field_entries(color0, color1, vec, hi, alpha)
         return vf, pos, keys, hwa
     color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
-    from fgcli.kernels.field import entries_kernel
+    from fgcli.kernels.field import entries_kernel, luma_plane_kernel
 
     h, w = vec.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
     pos, keys = _empty(2, h, w), _empty(2, h, w, dtype=torch.int64)
-    entries_kernel(_a(color0), _a(color1), _a(vec), _a(hi).reshape(h, w), F32(1.0 - a), gxn,
+    l0 = np.empty((h, w), dtype=np.float32)
+    luma_plane_kernel(_a(color0), l0)
+    entries_kernel(l0, _a(color1), _a(vec), _a(hi).reshape(h, w), F32(1.0 - a), gxn,
                    gyn, kx, ky, pos.numpy(), keys.numpy())
     vf = R.sanitize_mv(vec).reshape(2, -1)
     return vf, pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a)
