@@ -701,6 +701,23 @@ def test_pyramid_level_and_fills(h, w):
                 fsr3.fill_vector_field(v, prio, valid))
 
 
+def test_depth_priority_is_the_reference():
+    """FSR 3's 10-bit depth priority: the kernels around torch's own pow give the
+    reference's ranks exactly: depths over 42 decades with both float32 neighbours of each
+    (so that ranks change between neighbours somewhere), sky, NaN, negative, -0.0 and the
+    1e30 clamp."""
+    from fgcli.ops import fsr3
+
+    d = torch.logspace(-30, 12, 300_000, dtype=torch.float64).to(torch.float32)
+    d = torch.cat([d, torch.nextafter(d, torch.full_like(d, INF)),
+                   torch.nextafter(d, torch.zeros_like(d)),
+                   torch.tensor([NAN, INF, -INF, -1.0, -0.0, 0.0, 1e-45, 1e30, 2e30, 3e38])])
+    d = d[: d.numel() // 7 * 7].view(1, 7, -1)
+    k, r = K.depth_priority(d), fsr3.depth_priority(d)
+    assert k.dtype == r.dtype == torch.int64 and torch.equal(k, r)
+    assert len(set(r.view(-1).tolist())) == 1023  # every rank, so every boundary, is met
+
+
 @pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 1)])
 def test_luma8_is_the_reference(h, w):
     """FfxOpticalFlow's 8-bit luminance: the kernels around torch's own pow give the

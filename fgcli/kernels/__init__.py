@@ -53,6 +53,7 @@ KERNEL_OPS = {
     "inpaint_color": "fgcli.ops.fsr3",
     "pyramid_inpaint": "fgcli.ops.pyramid",
     "luma8": "fgcli.ops.fsr3",
+    "depth_priority": "fgcli.ops.fsr3",
     "avg_pool2": "fgcli.ops.pyramid",
     "unpack_vector_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",

@@ -228,6 +228,33 @@ def _pack(prio, comp):
 
 
 @njit(**KERNEL)
+def depth_clamp_kernel(depth, z):
+    """fgcli.ops.fsr3.depth_priority's first part: z = sanitize_depth(depth) clamped to
+    at most 1e30 (the input of torch's pow)."""
+    h, w = z.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            v = sdepth_b(depth[y, x])
+            z[y, x] = F32(1e30) if v > F32(1e30) else v
+
+
+@njit(**KERNEL)
+def depth_rank_kernel(z, hi):
+    """depth_priority's last part: hi = clamp(floor((1 - z / (1 + z)) * 1023), 1, 1023)
+    as int64, z = the clamped depth to the power 0.33 (torch's pow)."""
+    h, w = z.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            v = z[y, x]
+            r = np.floor((F32(1.0) - v / (F32(1.0) + v)) * F32(1023.0))
+            r = F32(1.0) if r < F32(1.0) else r
+            r = F32(1023.0) if r > F32(1023.0) else r
+            hi[y, x] = np.int64(r)
+
+
+@njit(**KERNEL)
 def luma_plane_kernel(c, out):
     """out (H, W) = sanitize_values(luminance(sanitize_values(c))): the value the entries'
     bilinear read takes at each tap."""
@@ -239,12 +266,16 @@ def luma_plane_kernel(c, out):
 
 
 @njit(**KERNEL)
-def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
+def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist, d,
+                   rowmax):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
     so a tap is one gather, not three): frame 0's luminance read bilinearly at
     p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
     luminance at p, the packed primary entries of both components (keys (2, H, W) int64)
-    and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha)."""
+    and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
+    ``sec``: the secondary walk's lengths dist = |(1 - alpha) v| (H, W), unit steps d =
+    v / max(dist, 1e-6) (2, H, W) and each row's longest (rowmax (H,)), the reference's
+    float32 operations (dist: a product, the sum of the two squares, IEEE sqrt)."""
     h, w = hi.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -287,6 +318,21 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys):
             keys[1, y, x] = _pack(prio, vy)
             pos[0, y, x] = F32(x) + vx * a1
             pos[1, y, x] = yf + vy * a1
+        if sec:  # the secondary walk's lengths and unit steps
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                t0 = vx * a1
+                t1 = vy * a1
+                dd = np.sqrt(t0 * t0 + t1 * t1)
+                dist[y, x] = dd
+                c = F32(1e-6) if dd < F32(1e-6) else dd
+                d[0, y, x] = vx / c
+                d[1, y, x] = vy / c
+            m = F32(0.0)
+            for x in range(w):  # (a reduction in the loop above would stop it vectorising)
+                m = dist[y, x] if dist[y, x] > m else m
+            rowmax[y] = m
 
 
 @njit(**INLINE)

@@ -519,6 +519,7 @@ _GROUPS = (
      ("fsr3", lambda i: avg_pool2(i["c"])),
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: luma8(i["c"])),
+     ("fsr3", lambda i: depth_priority(i["d"])),
      ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
      ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
@@ -581,6 +582,7 @@ def _cache_cold(families=None) -> bool:
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
+                    field.depth_clamp_kernel, field.depth_rank_kernel,
                     fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
 
@@ -733,14 +735,38 @@ def luma8(color):
     return c
 
 
-def _field_entries(color0, color1, vec, hi, alpha):
-    """fgcli.ops.fsr3.field_entries by the numba kernel: (vf (2, N), pos (2, N), keys
-    [(N,), (N,)] int64, (h, w, alpha))."""
+def depth_priority(depth):
+    """fgcli.ops.fsr3.depth_priority: the sanitising and clamp in one kernel, torch's own
+    pow (the reference's call), the rank in a second kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (_f32cpu(depth) and depth.shape[0] == 1):
+        return FS.depth_priority(depth)
+    from fgcli.kernels.field import depth_clamp_kernel, depth_rank_kernel
+
+    h, w = depth.shape[-2:]
+    z = _empty(1, h, w)
+    depth_clamp_kernel(_a(depth)[0], z.numpy()[0])
+    z.pow_(0.33)
+    hi = _empty(1, h, w, dtype=torch.int64)
+    depth_rank_kernel(z.numpy()[0], hi.numpy()[0])
+    return hi
+
+
+def _field_entries(color0, color1, vec, hi, alpha, sec=False):
+    """fgcli.ops.fsr3.field_entries by the numba kernel: (pos (2, N), keys [(N,), (N,)]
+    int64, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N), longest) numpy
+    arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and vf / dist.clamp(min=
+    1e-6)), else None. Other inputs: the reference's own function."""
     from fgcli.ops import fsr3 as FS
 
     if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel():
-        vf, pos, _, _, keys, hwa = FS.field_entries(color0, color1, vec, hi, alpha)
-        return vf, pos, keys, hwa
+        vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
+        walk = None
+        if sec and vf.shape[1]:
+            dt = FS._length(vf * (1.0 - a))
+            walk = (_a(dt), _a(vf / dt.clamp(min=1e-6)), float(dt.max()))
+        return pos, keys, (h, w, a), walk
     color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
     from fgcli.kernels.field import entries_kernel, luma_plane_kernel
 
@@ -749,10 +775,15 @@ def _field_entries(color0, color1, vec, hi, alpha):
     pos, keys = _empty(2, h, w), _empty(2, h, w, dtype=torch.int64)
     l0 = np.empty((h, w), dtype=np.float32)
     luma_plane_kernel(_a(color0), l0)
+    if sec:
+        dist, d = np.empty((h, w), dtype=np.float32), np.empty((2, h, w), dtype=np.float32)
+        rowmax = np.empty(h, dtype=np.float32)
+    else:
+        dist, d, rowmax = l0, l0[None], np.empty(1, dtype=np.float32)  # (unwritten)
     entries_kernel(l0, _a(color1), _a(vec), _a(hi).reshape(h, w), F32(1.0 - a), gxn,
-                   gyn, kx, ky, pos.numpy(), keys.numpy())
-    vf = R.sanitize_mv(vec).reshape(2, -1)
-    return vf, pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a)
+                   gyn, kx, ky, pos.numpy(), keys.numpy(), bool(sec), dist, d, rowmax)
+    walk = (dist.reshape(-1), d.reshape(2, -1), float(rowmax.max())) if sec and h * w else None
+    return pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a), walk
 
 
 def unpack_vector_field(field):
@@ -773,8 +804,9 @@ def unpack_vector_field(field):
 
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
                  tap_threshold=0.05, length_bound=None):
-    """fgcli.ops.fsr3.vector_field: the entries by the reference's torch code, the
-    scatter (primary footprints and the secondary walk) by the numba kernel."""
+    """fgcli.ops.fsr3.vector_field: the entries (and the secondary walk's lengths and
+    steps) by one numba kernel, the scatter (primary footprints and the secondary walk) by
+    another."""
     from fgcli.ops import fsr3 as FS
 
     if not _cpu(color0, color1, vec, hi):
@@ -782,17 +814,16 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
                                tap_threshold, length_bound)
     from fgcli.kernels.field import field_scatter_kernel
 
-    vf, pos, keys, (h, w, a) = _field_entries(color0, color1, vec, hi, alpha)
+    walk_on = secondary and max_secondary > 0
+    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on)
     n = (h + 2) * (w + 2)
     buf = [np.empty(n, dtype=np.int64) for _ in range(2)]  # (zeroed by the kernel)
     steps = 0
     dist = d = np.zeros((2, 1), dtype=np.float32)
-    if secondary and max_secondary > 0 and vf.shape[1]:
-        dt = FS._length(vf * (1.0 - a))
-        steps = int(min(max_secondary, np.floor(float(dt.max()))))
+    if walk is not None:
+        steps = int(min(max_secondary, np.floor(walk[2])))
         if steps >= 1:
-            d = _a(vf / dt.clamp(min=1e-6))
-            dist = _a(dt)
+            dist, d = walk[0], walk[1]
     sec = [np.empty(n if steps >= 1 else 1, dtype=np.int64) for _ in range(2)]
     # the components are independent scatters: one thread each
     field_scatter_kernel(_a(pos), _a(keys[0]), _a(keys[1]), dist.reshape(-1), d, h, w,

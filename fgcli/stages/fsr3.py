@@ -74,10 +74,9 @@ class FSR3GameField(Stage):
 
     def run(self, ctx):
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import depth_priority
 
         vector_field = op("vector_field", ctx)
-        hi = depth_priority(ctx["depth1_d"])
+        hi = op("depth_priority", ctx)(ctx["depth1_d"])
         # the per-frame facts' largest vector component (GPU path) bounds the walk
         m = (ctx.get("facts") or {}).get("mv1_absmax")
         return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"], hi,
