@@ -464,11 +464,21 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
 
 
 def fill_vector_field(vec, priority, valid):
-    """fgcli.ops.fsr3.fill_vector_field with the inpainting's dense part and pyramid
-    levels by numba kernels."""
+    """fgcli.ops.fsr3.fill_vector_field: the weight and hole mask in one kernel, then the
+    inpainting's dense part and pyramid levels by numba kernels."""
     from fgcli.ops import fsr3 as FS
 
-    return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2, inpaint=pyramid_inpaint)
+    shape = tuple(valid.shape) if isinstance(valid, torch.Tensor) else ()
+    if not (_f32cpu(vec) and len(shape) == 3 and shape[0] == 1 and _boolcpu(valid, shape)
+            and isinstance(priority, torch.Tensor) and priority.dtype == torch.int64
+            and priority.device.type == "cpu" and tuple(priority.shape) == shape):
+        return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2,
+                                    inpaint=pyramid_inpaint)
+    from fgcli.kernels.pyramid import field_weight_kernel
+
+    wgt, holes = _empty(*shape), _empty(*shape, dtype=torch.bool)
+    field_weight_kernel(_a(priority)[0], _u8(valid)[0], wgt.numpy()[0], _u8(holes)[0])
+    return pyramid_inpaint(vec, wgt, holes, mode="first")
 
 
 def inpaint_color(color, holes, decay=10.0):
@@ -520,6 +530,8 @@ _GROUPS = (
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: luma8(i["c"])),
      ("fsr3", lambda i: depth_priority(i["d"])),
+     ("fsr3", lambda i: fill_vector_field(i["mv"], (i["d"] * 100).to(torch.int64),
+                                          i["d"] > 1.0)),
      ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
      ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
@@ -580,7 +592,8 @@ def _cache_cold(families=None) -> bool:
                     field.field_scatter_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
-                    pyramid.inpaint_prep_kernel, flow.luma_clip_kernel, flow.luma_encode_kernel,
+                    pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
+                    flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
                     field.depth_clamp_kernel, field.depth_rank_kernel,
                     fsr3.interp_depth_kernel)

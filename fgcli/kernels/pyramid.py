@@ -103,3 +103,17 @@ def inpaint_prep_kernel(values, weight, holes, given, out, hout, lev1, nh):
                     lev1[k, q, ox] = s / F32(2.0)
                 if wf < w2:
                     lev1[k, q, wf] = (F32(0.0) + pr[0, w - 1]) / F32(1.0)
+
+
+@njit(**KERNEL)
+def field_weight_kernel(prio, valid, wgt, holes):
+    """fgcli.ops.fsr3.fill_vector_field's inputs to the inpainting in one pass: wgt =
+    float32(prio) / 65535 * valid, holes = not valid (prio (H, W) int64, valid and holes
+    (H, W) uint8)."""
+    h, w = wgt.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            v = valid[y, x] != U0
+            wgt[y, x] = (F32(prio[y, x]) / F32(65535.0)) * (F32(1.0) if v else F32(0.0))
+            holes[y, x] = U0 if v else U1
