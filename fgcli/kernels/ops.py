@@ -434,8 +434,9 @@ def avg_pool2(x):
 def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e-12,
                     pool=None):
     """fgcli.ops.pyramid.pyramid_inpaint: the dense part (sanitised copy, cleaned weight,
-    hole mask and count, level 1 straight from the image) in one kernel, the coarser
-    levels by pool2_kernel, then the reference's sampling at the hole pixels."""
+    hole mask and count, level 1 straight from the image) in one kernel, the hole indices
+    in another, the coarser levels by pool2_kernel, then the reference's sampling at the
+    hole pixels."""
     from fgcli.ops import pyramid as PY
 
     ok = (_f32cpu(values) and _f32cpu(weight) and weight.shape[0] == 1
@@ -444,7 +445,14 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
     if not ok:
         return PY.pyramid_inpaint(values, weight, holes, mode, decay, eps, pool=avg_pool2)
     values, weight, holes = PY.checked_inpaint_args(values, weight, holes, mode, decay)
-    from fgcli.kernels.pyramid import inpaint_prep_kernel
+    return _inpaint(values, weight, holes, mode, decay, eps)
+
+
+def _inpaint(values, weight, holes, mode, decay, eps):
+    """pyramid_inpaint's kernel path on checked inputs; weight None: 1 everywhere (holes
+    given)."""
+    from fgcli.ops import pyramid as PY
+    from fgcli.kernels.pyramid import hole_index_kernel, inpaint_prep_kernel
 
     c, h, w = values.shape
     out = _empty(c, h, w)
@@ -452,15 +460,20 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
     lev1 = _empty(c + 1, (h + 1) // 2, (w + 1) // 2)
     nh = np.empty((h + 1) // 2, dtype=np.int64)
     ha = _u8(holes)[0] if holes is not None else _u8(hout)[0]  # (unread when not given)
-    inpaint_prep_kernel(_a(values), _a(weight)[0], ha, holes is not None, out.numpy(),
-                        _u8(hout)[0], lev1.numpy(), nh)
-    if int(nh.sum()) == 0:
+    va = _a(values)
+    inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
+                        holes is not None, out.numpy(), _u8(hout)[0], lev1.numpy(), nh)
+    start = np.zeros(nh.size + 1, dtype=np.int64)
+    np.cumsum(nh, out=start[1:])
+    n = int(start[-1])
+    if n == 0:
         return out, torch.zeros(1, h, w, dtype=torch.bool)
-    idx = hout.view(-1).nonzero().view(-1)
+    idx = np.empty(n, dtype=np.int64)
+    hole_index_kernel(_u8(hout)[0], start, idx)
     lev = [None, lev1]
     while lev[-1].shape[1] > 1 or lev[-1].shape[2] > 1:
         lev.append(avg_pool2(lev[-1]))
-    return PY.fill_from_levels(out, hout, idx, lev, mode, decay, eps)
+    return PY.fill_from_levels(out, hout, torch.from_numpy(idx), lev, mode, decay, eps)
 
 
 def fill_vector_field(vec, priority, valid):
@@ -482,11 +495,18 @@ def fill_vector_field(vec, priority, valid):
 
 
 def inpaint_color(color, holes, decay=10.0):
-    """fgcli.ops.fsr3.inpaint_color with the inpainting's dense part and pyramid levels by
-    numba kernels."""
+    """fgcli.ops.fsr3.inpaint_color with the inpainting by numba kernels (the weight
+    (~holes).float() never made: 1 everywhere, the given holes zero it)."""
     from fgcli.ops import fsr3 as FS
 
-    return FS.inpaint_color(color, holes, decay, pool=avg_pool2, inpaint=pyramid_inpaint)
+    if not (_f32cpu(color) and isinstance(holes, torch.Tensor) and holes.dim() == 3
+            and _boolcpu(holes, (1,) + tuple(color.shape[1:]))
+            and color.shape[1] * color.shape[2] > 1):
+        return FS.inpaint_color(color, holes, decay, pool=avg_pool2, inpaint=pyramid_inpaint)
+    if not (decay > 0):
+        raise ValueError(f"decay: expected > 0, got {decay!r}")
+    out, _ = _inpaint(color, None, holes, "blend", decay, 1e-12)
+    return out
 
 
 # ----------------------------------------------------------------------------- start-up
@@ -593,6 +613,7 @@ def _cache_cold(families=None) -> bool:
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
+                    pyramid.hole_index_kernel,
                     flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
                     field.depth_clamp_kernel, field.depth_rank_kernel,

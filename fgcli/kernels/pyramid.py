@@ -46,12 +46,14 @@ def pool2_kernel(src, dst):
 
 
 @njit(**KERNEL)
-def inpaint_prep_kernel(values, weight, holes, given, out, hout, lev1, nh):
+def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh):
     """fgcli.ops.pyramid.pyramid_inpaint's dense part in one pass, level 0 never stored:
     out (C, H, W) = sanitize_values(values); the weight cleaned (NaN, +-inf and negatives
     -> 0); hout (H, W) uint8 = holes (given) or cleaned weight <= 0; lev1 (C + 1, h2, w2)
     = pool2_kernel of level 0 = [v * w, w] with w the cleaned weight, 0 at holes (the
-    same sums in the same order); nh (h2,) the holes of each pair of rows."""
+    same sums in the same order); nh (h2,) the holes of each pair of rows. unit: a weight
+    of 1 everywhere (weight is then read, not used; given holes make it the reference's
+    (~holes).float())."""
     c, h, w = values.shape
     h2 = lev1.shape[1]
     w2 = lev1.shape[2]
@@ -66,7 +68,7 @@ def inpaint_prep_kernel(values, weight, holes, given, out, hout, lev1, nh):
         for r in range(nr):
             y = y0 + r
             for x in range(w):
-                v = weight[y, x]
+                v = F32(1.0) if unit else weight[y, x]
                 v = F32(0.0) if (v != v) | (v == INF) | (v < F32(0.0)) else v
                 hl = (holes[y, x] != U0) if given else (v <= F32(0.0))
                 hout[y, x] = U1 if hl else U0
@@ -117,3 +119,19 @@ def field_weight_kernel(prio, valid, wgt, holes):
             v = valid[y, x] != U0
             wgt[y, x] = (F32(prio[y, x]) / F32(65535.0)) * (F32(1.0) if v else F32(0.0))
             holes[y, x] = U0 if v else U1
+
+
+@njit(**KERNEL)
+def hole_index_kernel(hout, start, idx):
+    """The flat indices of the holes (hout (H, W) uint8) in increasing order (torch's
+    nonzero): each pair of rows q writes its own from start[q] (the prefix sums of
+    inpaint_prep_kernel's counts)."""
+    h, w = hout.shape
+    for pq in prange(start.shape[0] - 1):
+        q = np.int64(pq)
+        k = start[q]
+        for y in range(2 * q, min(2 * q + 2, h)):
+            for x in range(w):
+                if hout[y, x] != U0:
+                    idx[k] = y * w + x
+                    k += 1
