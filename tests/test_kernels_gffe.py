@@ -426,6 +426,12 @@ def test_sample_where_skips_unselected_runs(h, w):
             fref = torch.where(sel, fl, fb if fb is not None else torch.zeros(()))
             close_tree(f"sample_where {h}x{w}", out, ref)
             bits_equal(f"sample_where flow {h}x{w}", fout, fref)
+            if b is not None:  # the fills' form: into their own base, no flow
+                own = b.clone()
+                o2, f2 = _sample_where(img, fl, sel[0], base=own, flow_out=False,
+                                       in_place=True)
+                assert o2 is own and f2 is None
+                close_tree(f"sample_where in place {h}x{w}", o2, ref)
 
 
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51), (15, 200)])

@@ -43,14 +43,12 @@ SPAN = 64  # sample_where_kernel's unit of skipping
 
 
 @njit(**INLINE)
-def _sample_px(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyy, kx, ky, hw, hh, wm1,
-               hm1, w, h, out, fout, x, y):
-    """sample_where_kernel at pixel (x, y), selects only."""
+def _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w, h, out,
+               x, y):
+    """sample_where_kernel's colour at pixel (x, y), selects only."""
     s = sel[y, x] != U0
-    fx0 = flow[0, y, x]
-    fy0 = flow[1, y, x]
-    fx = sflow_b(fx0)
-    fy = sflow_b(fy0)
+    fx = sflow_b(flow[0, y, x])
+    fy = sflow_b(flow[1, y, x])
     zero = (fx == ZERO) & (fy == ZERO)
     y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
                                              w, h)
@@ -59,22 +57,19 @@ def _sample_px(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyy, kx, k
         r = sval_b(img[k, y, x]) if zero else r
         b = base[k, y, x] if has_base else ZERO
         out[k, y, x] = r if s else b
-    b0 = fbase[0, y, x] if has_fbase else ZERO
-    b1 = fbase[1, y, x] if has_fbase else ZERO
-    fout[0, y, x] = fx0 if s else b0
-    fout[1, y, x] = fy0 if s else b1
 
 
 @njit(**KERNEL)
 def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
-                        out, fout):
-    """out = where(sel, backward_warp(img, flow, 'bilinear'), base or 0) (3 channels) and
-    fout = where(sel, flow, fbase or 0).
+                        out, fout, inplace, want_f):
+    """out = where(sel, backward_warp(img, flow, 'bilinear'), base or 0) (3 channels) and,
+    with want_f, fout = where(sel, flow, fbase or 0).
 
     Sparse selections (the fills select their holes, often 0-2 % of the pixels) skip the
-    sampling: a run of SPAN pixels with no pixel selected copies base and fbase (or
-    zeroes); any other run computes every pixel with selects. The flow outside the
-    selection is never read there (the fills leave it unwritten)."""
+    sampling: a run of SPAN pixels with no pixel selected copies base (or zeroes; nothing
+    when ``inplace``: out is base itself); any other run computes every pixel with
+    selects. The flow outside the selection is never read there (the fills leave it
+    unwritten)."""
     h, w = sel.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -83,6 +78,13 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
     for py in prange(h):
         y = np.int64(py)
         gyy = gyn[y]
+        if want_f:
+            for x in range(w):
+                s = sel[y, x] != U0
+                b0 = fbase[0, y, x] if has_fbase else ZERO
+                b1 = fbase[1, y, x] if has_fbase else ZERO
+                fout[0, y, x] = flow[0, y, x] if s else b0
+                fout[1, y, x] = flow[1, y, x] if s else b1
         for xs in range((w + SPAN - 1) // SPAN):
             xa = np.int64(xs) * SPAN
             n = min(SPAN, w - xa)
@@ -90,16 +92,15 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
             for i in range(n):
                 m |= sel[y, xa + i]
             if m == U0:
-                for i in range(n):
-                    x = xa + i
-                    for k in range(3):
-                        out[k, y, x] = base[k, y, x] if has_base else ZERO
-                    fout[0, y, x] = fbase[0, y, x] if has_fbase else ZERO
-                    fout[1, y, x] = fbase[1, y, x] if has_fbase else ZERO
+                if not inplace:
+                    for i in range(n):
+                        x = xa + i
+                        for k in range(3):
+                            out[k, y, x] = base[k, y, x] if has_base else ZERO
             else:
                 for i in range(n):
-                    _sample_px(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyy, kx,
-                               ky, hw, hh, wm1, hm1, w, h, out, fout, xa + i, y)
+                    _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1,
+                               hm1, w, h, out, xa + i, y)
 
 
 # ----------------------------------------------------------------------------- warp

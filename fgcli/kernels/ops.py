@@ -1126,19 +1126,23 @@ def _u8(t) -> np.ndarray:
     return _a(t).view(np.uint8)
 
 
-def _sample_where(img, flow, sel, base=None, fbase=None):
+def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place=False):
     """(where(sel, backward_warp(img, flow, 'bilinear'), base or 0),
-    where(sel, flow, fbase or 0)) for a 3-channel img, by one kernel."""
+    where(sel, flow, fbase or 0) or None without flow_out) for a 3-channel img, by one
+    kernel. in_place: base is the caller's own scratch; it becomes the first result."""
     from fgcli.kernels.gffe import sample_where_kernel
 
     h, w = sel.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
-    out, fout = _empty(3, h, w), _empty(2, h, w)
+    inp = in_place and base is not None
+    out = base if inp else _empty(3, h, w)
+    fout = _empty(2, h, w) if flow_out else None
     ia, fa = _a(img), _a(flow)
-    # without base / fbase, same-shape stand-ins (the kernel's selects read them)
+    # without base / fbase / fout, same-shape stand-ins (the kernel's selects read them)
     sample_where_kernel(ia, fa, _u8(sel).reshape(h, w), ia if base is None else _a(base),
                         base is not None, fa if fbase is None else _a(fbase),
-                        fbase is not None, gxn, gyn, kx, ky, out.numpy(), fout.numpy())
+                        fbase is not None, gxn, gyn, kx, ky, out.numpy(),
+                        fa if fout is None else fout.numpy(), inp, flow_out)
     return out, fout
 
 
@@ -1481,7 +1485,7 @@ def reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol=0
     reproject_took_kernel(px.numpy(), py.numpy(), _u8(pok), _u8(valid)[0], _a(depth)[0],
                           _a(depth1)[0], offscreen == "clamp", F32(1.0 - float(depth_tol)),
                           _u8(took)[0], flow.numpy())
-    out, _ = _sample_where(color1, flow, took, base=color)
+    out, _ = _sample_where(color1, flow, took, base=color, flow_out=False)
     return out, flow, took
 
 
@@ -1513,7 +1517,7 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
     reproject_mv_kernel(px.numpy(), py.numpy(), _u8(pok), vu, _a(d)[0], _a(depth1)[0],
                         offscreen == "clamp", F32(1.0 - 0.05), _a(mv), _u8(took)[0],
                         flow.numpy(), out.numpy())
-    c, _ = _sample_where(color1, flow, took, base=c)
+    c, _ = _sample_where(color1, flow, took, base=c, flow_out=False, in_place=True)
     holes = torch.tensor(int(vu.size - np.count_nonzero(vu)), dtype=torch.int64)
     return c, d, out, holes
 
@@ -1539,5 +1543,5 @@ def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
     flow, dep, mvo = _empty(2, H, W), _empty(1, H, W), _empty(2, H, W)
     vector_rule_kernel(_a(mv1), _a(depth1)[0], _u8(valid)[0], _a(depth)[0], _a(mv), F32(a),
                        F32(1.0 - thr), _u8(took)[0], flow.numpy(), dep.numpy()[0], mvo.numpy())
-    out, _ = _sample_where(color1, flow, took, base=color)
+    out, _ = _sample_where(color1, flow, took, base=color, flow_out=False)
     return out, dep, mvo, took
