@@ -220,3 +220,80 @@ def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
             ry[x] = qy
             rd[x] = d
             ro[x] = o
+
+
+# ----------------------------------------------------------------------------- reproject
+
+@njit(**KERNEL)
+def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, ook, ss, nsky):
+    """project(unproject(depth, samples), camera 2) without the positions in memory: per
+    row, unproject_kernel's surface points into row buffers, then project_kernel's loop
+    on them (each loop as vectorised as in its own kernel; the positions stay in cache).
+    ss, nsky as unproject_kernel's; the sky pixels' outputs are finished by
+    reproject_sky_kernel."""
+    h, w = depth.shape
+    for y in prange(h):
+        nxr = np.empty(w, dtype=np.float32)
+        nyr = np.empty(w, dtype=np.float32)
+        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        dr = depth[y]
+        o0 = np.empty(w, dtype=np.float32)
+        o1 = np.empty(w, dtype=np.float32)
+        o2 = np.empty(w, dtype=np.float32)
+        o3 = np.empty(w, dtype=np.float32)
+        sr = ss[y]
+        for x in range(w):
+            a, b, c, e, s = _surface_px(nxr[x], nyr[x], dr[x], A, M)
+            o0[x] = a
+            o1[x] = b
+            o2[x] = c
+            o3[x] = e
+            sr[x] = s
+        n = 0
+        for x in range(w):
+            n += np.int64(dr[x] == INF)
+        nsky[y] = n
+        rx = opx[y]
+        ry = opy[y]
+        rd = od[y]
+        ro = ook[y]
+        for x in range(w):
+            qx, qy, d, o = _project_px(o0[x], o1[x], o2[x], o3[x], V, P, hw, hh)
+            rx[x] = qx
+            ry[x] = qy
+            rd[x] = d
+            ro[x] = o
+
+
+@njit(**KERNEL)
+def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx, opy, od,
+                         ook):
+    """reproject_kernel's sky pixels on rows y0 .. y0 + len(nrm) - 1 (nrm: torch.sqrt of
+    their squared norms): the direction (unproject_sky_kernel's), projected."""
+    w = depth.shape[1]
+    for r in prange(nrm.shape[0]):
+        y = y0 + r
+        nxr = np.empty(w, dtype=np.float32)
+        nyr = np.empty(w, dtype=np.float32)
+        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        nr = nrm[r]
+        t0 = np.empty(w, dtype=np.float32)
+        t1 = np.empty(w, dtype=np.float32)
+        t2 = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            a, b, c = _sky_px(nxr[x], nyr[x], nr[x], A, M)
+            t0[x] = a
+            t1[x] = b
+            t2[x] = c
+        dr = depth[y]
+        rx = opx[y]
+        ry = opy[y]
+        rd = od[y]
+        ro = ook[y]
+        for x in range(w):
+            sky = dr[x] == INF
+            qx, qy, d, o = _project_px(t0[x], t1[x], t2[x], ZERO, V, P, hw, hh)
+            rx[x] = qx if sky else rx[x]
+            ry[x] = qy if sky else ry[x]
+            rd[x] = d if sky else rd[x]
+            ro[x] = o if sky else ro[x]

@@ -621,7 +621,8 @@ def _cache_cold(families=None) -> bool:
     from fgcli.kernels import geom, gffe
 
     if "gffe" in fams:
-        kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel)
+        kernels += (geom.unproject_kernel, geom.unproject_sky_kernel, geom.project_kernel,
+                    geom.reproject_kernel, geom.reproject_sky_kernel)
         kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
                     gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                     gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
@@ -985,6 +986,32 @@ def unproject(depth, cam, px=None, py=None, size=None):
     return out
 
 
+def reproject(depth, cam_from, cam_to, size, px=None, py=None):
+    """project(unproject(depth, cam_from, px, py, size), cam_to, size) by
+    geom.reproject_kernel (+ reproject_sky_kernel where there is sky): the same values,
+    the positions never written out."""
+    s = _samples(depth, px, py) if _geom_ok(depth, size) else None
+    if s is None:
+        return project(unproject(depth, cam_from, px, py, size), cam_to, size)
+    from fgcli.kernels.geom import reproject_kernel, reproject_sky_kernel
+
+    h, w = depth.shape[-2:]
+    kx, ky, A, M = _unproject_coefs(cam_from, size or (h, w))
+    V, P, hw, hh = _project_coefs(cam_to, size)
+    d = _a(depth)[0]
+    ss = np.empty((h, w), dtype=np.float32)
+    nsky = np.empty(h, dtype=np.int64)
+    opx, opy, od = _empty(h, w), _empty(h, w), _empty(h, w)
+    ook = _empty(h, w, dtype=torch.bool)
+    outs = (opx.numpy(), opy.numpy(), od.numpy(), ook.numpy())
+    reproject_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, *outs, ss, nsky)
+    sky = _sky_rows(nsky, ss)
+    if sky is not None:
+        reproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, sky[1], sky[0],
+                             *outs)
+    return opx, opy, od, ook
+
+
 def project(X, cam, size):
     """fgcli.ops.gffe.project by geom.project_kernel."""
     if not (isinstance(X, torch.Tensor) and X.device.type == "cpu"
@@ -1011,6 +1038,7 @@ def _warm_gffe(d) -> None:
                                 [0, 0, -1.0, 0]]))
     p = unproject(d, cam)
     project(p, cam, tuple(d.shape[-2:]))
+    reproject(d, cam, cam, tuple(d.shape[-2:]))
     # the fused gffe ops (fgcli.kernels.gffe), once each
     h, w = d.shape[-2:]
     c = torch.rand(3, h, w, generator=torch.Generator().manual_seed(0))
@@ -1037,7 +1065,7 @@ def _warm_gffe(d) -> None:
 
 # the gffe ops with these kernels for their camera geometry (the ops' ``geom`` argument;
 # every other step of them stays the reference's torch code)
-GEOM = G.Geometry(unproject, project)
+GEOM = G.Geometry(unproject, project, reproject)
 
 
 def _with_geom(name: str):
@@ -1478,8 +1506,7 @@ def reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol=0
                                 offscreen, border, geom=GEOM)
     from fgcli.kernels.gffe import reproject_took_kernel
 
-    X = unproject(depth, cam_x)
-    px, py, _, pok = project(X, cam1, (H, W))
+    px, py, _, pok = reproject(depth, cam_x, cam1, (H, W))
     took = _empty(1, H, W, dtype=torch.bool)
     flow = _empty(2, H, W)
     reproject_took_kernel(px.numpy(), py.numpy(), _u8(pok), _u8(valid)[0], _a(depth)[0],
@@ -1509,8 +1536,7 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
     from fgcli.kernels.gffe import reproject_mv_kernel
 
     c, d = push_pull_fill(color, valid, depth, far_bias)
-    X = unproject(d, cam_x)
-    px, py, _, pok = project(X, cam1, (H, W))
+    px, py, _, pok = reproject(d, cam_x, cam1, (H, W))
     took = _empty(1, H, W, dtype=torch.bool)
     flow, out = _empty(2, H, W), _empty(2, H, W)
     vu = _u8(valid)[0]

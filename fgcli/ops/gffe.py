@@ -225,12 +225,22 @@ def project(X: torch.Tensor, cam, size: tuple[int, int]):
 class Geometry(NamedTuple):
     """The implementation of unproject / project the ops below use (their ``geom``
     argument): None = these torch functions (the reference, and the GPU path);
-    fgcli.kernels.ops.GEOM = the numba kernels (bit-identical)."""
+    fgcli.kernels.ops.GEOM = the numba kernels (bit-identical). reproject: project of
+    unproject in one step (same values), or None: the two one after the other."""
     unproject: Callable
     project: Callable
+    reproject: Callable | None = None
 
 
 TORCH_GEOM = Geometry(unproject, project)
+
+
+def _reproject(g, depth, cam_from, cam_to, size, px=None, py=None):
+    """g.project(g.unproject(depth, cam_from, px, py, size), cam_to, size), by
+    g.reproject where the geometry has one."""
+    if g.reproject is not None:
+        return g.reproject(depth, cam_from, cam_to, size, px, py)
+    return g.project(g.unproject(depth, cam_from, px, py, size), cam_to, size)
 
 
 # ----------------------------------------------------------------------------- history
@@ -563,8 +573,7 @@ def _layer_fragments(layer, cam_from, cam_to, size, scale, geom=None):
     cx, cy = _centres(h, w, scale, layer["depth"].device)
     d = torch.where(layer["valid"], layer["depth"], torch.zeros_like(layer["depth"]))
     g = geom or TORCH_GEOM
-    X = g.unproject(d, cam_from, cx, cy, size)
-    px, py, dn, ok = g.project(X, cam_to, size)
+    px, py, dn, ok = _reproject(g, d, cam_from, cam_to, size, cx, cy)
     return px, py, dn, ok & layer["valid"][0]
 
 
@@ -850,8 +859,8 @@ def project_border(border: dict, cam1, cam_x, holes: torch.Tensor, geom: Geometr
     d = d_ext[0]
     use = ring & torch.isfinite(d) & (d > 0)
     g = geom or TORCH_GEOM
-    X = g.unproject(torch.where(use, d, torch.zeros_like(d))[None], cam1, cx, cy, (H, W))
-    px, py, dn, ok = g.project(X, cam_x, (H, W))
+    px, py, dn, ok = _reproject(g, torch.where(use, d, torch.zeros_like(d))[None], cam1, cam_x,
+                                (H, W), cx, cy)
     src, dep = _splat_min(torch.floor(px), torch.floor(py), dn, ok & use, H, W)
     s = src.view(H, W)
     hit = s >= 0
@@ -1040,8 +1049,7 @@ def reproject_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
     H, W = color.shape[-2:]
     a = aux(H, W, color.device)
     g = geom or TORCH_GEOM
-    X = g.unproject(depth, cam_x)
-    px, py, _, ok = g.project(X, cam1, (H, W))
+    px, py, _, ok = _reproject(g, depth, cam_x, cam1, (H, W))
     if border is not None:
         return _reproject_border(color, valid, depth, border, px, py, ok, a, depth_tol,
                                  offscreen)
