@@ -176,6 +176,9 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
     wf = F32(w)
     i2 = 2 if quad else 1  # (k = 2: a plane that exists, unused)
     two = F32(2.0)
+    # the winner's flat index n reads flat views: the element [n // w, n % w], no division
+    tf = traj.reshape((traj.shape[0], 4, h * w))
+    df = dyn.reshape(h * w)
     for pr in prange(h):
         y = np.int64(pr)
         nidx = np.empty(w, dtype=np.int64)
@@ -184,12 +187,10 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
             fi = clamp_b(np.floor(src[1, y, x]), ZERO, hm1) * wf + \
                 clamp_b(np.floor(src[0, y, x]), ZERO, wm1)
             n = np.int64(fi)
-            ny = _div(n, w)
-            nx = n - ny * w
             nidx[x] = n
-            t3 = traj[0, 3, ny, nx]
+            t3 = tf[0, 3, n]
             b = (t3 > ZERO) & (traj[0, 3, y, x] > ZERO)
-            dn = (dyn[ny, nx] != U0) | (not has_dyn)
+            dn = (df[n] != U0) | (not has_dyn)
             dx = (dyn[y, x] != U0) & has_dyn
             b = b & dn & (not dx)
             both[x] = ONE if b else ZERO
@@ -198,22 +199,18 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
                 out[c, y, x] = pd[c, y, x] if take else traj[0, c, y, x]
         for x in range(w):
             n = nidx[x]
-            ny = _div(n, w)
-            nx = n - ny * w
             b = both[x] != ZERO
-            t03 = traj[0, 3, ny, nx]
-            ok1 = b & (traj[1, 3, ny, nx] == t03)
-            ok2 = b & (traj[i2, 3, ny, nx] == t03)
+            t03 = tf[0, 3, n]
+            ok1 = b & (tf[1, 3, n] == t03)
+            ok2 = b & (tf[i2, 3, n] == t03)
             p03 = out[3, y, x]
-            q13 = (p03 - (t03 - traj[1, 3, ny, nx])) if ok1 else traj[1, 3, y, x]
-            q23 = (p03 - (t03 - traj[i2, 3, ny, nx])) if ok2 else traj[i2, 3, y, x]
+            q13 = (p03 - (t03 - tf[1, 3, n])) if ok1 else traj[1, 3, y, x]
+            q23 = (p03 - (t03 - tf[i2, 3, n])) if ok2 else traj[i2, 3, y, x]
             same = (q13 == p03) & ((q23 == p03) | (not quad))
             for c in range(3):
                 p0c = out[c, y, x]
-                q1 = (p0c - (traj[0, c, ny, nx] - traj[1, c, ny, nx])) if ok1 else \
-                    traj[1, c, y, x]
-                q2 = (p0c - (traj[0, c, ny, nx] - traj[i2, c, ny, nx])) if ok2 else \
-                    traj[i2, c, y, x]
+                q1 = (p0c - (tf[0, c, n] - tf[1, c, n])) if ok1 else traj[1, c, y, x]
+                q2 = (p0c - (tf[0, c, n] - tf[i2, c, n])) if ok2 else traj[i2, c, y, x]
                 r = p0c + a * (p0c - q1)
                 rq = r + cq * ((p0c - two * q1) + q2)
                 r = rq if quad else r
@@ -363,9 +360,10 @@ def _nan_inf_b(v):
 
 
 @njit(**INLINE)
-def _entering_px(mv1, depth1, a, behind, entering, x, y, yh, wf, hf, wm1, hm1, w):
+def _entering_px(mv1, depth1, depth1f, a, behind, entering, x, y, yh, wf, hf, wm1, hm1, w):
     """entering_surface's test at (x, y): 1 where the surface goes off-screen (or, behind,
-    comes from behind a nearer one) and is nearer than ``dlim`` allows, else 0."""
+    comes from behind a nearer one) and is nearer than ``dlim`` allows, else 0. depth1f:
+    depth1's flat view (a flat pixel index reads it without a division)."""
     xh = F32(x) + HALF
     m0 = smv_b(mv1[0, y, x])
     m1 = smv_b(mv1[1, y, x])
@@ -377,9 +375,7 @@ def _entering_px(mv1, depth1, a, behind, entering, x, y, yh, wf, hf, wm1, hm1, w
     iy = np.floor(sy)
     inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
     j = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
-    jy = _div(j, w)
-    jx = j - jy * w
-    ds = _nan_inf_b(depth1[jy, jx])
+    ds = _nan_inf_b(depth1f[j])
     off = off | (behind & inside & (ds < dq * KEEP3))
     return ONE if (entering & off & (dq > ZERO)) else ZERO
 
@@ -445,6 +441,7 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
     hf = F32(h)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    depth1f = depth1.reshape(h * w)
     for pr in prange(h):
         y = np.int64(pr)
         yy = (y >> 1) if sc2 else y
@@ -469,8 +466,8 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
                 continue
             # entering_surface's test (its own gather loop)
             for i in range(n):
-                tk[i] = _entering_px(mv1, depth1, a, behind, entering, xa + i, y, yh, wf, hf,
-                                     wm1, hm1, w)
+                tk[i] = _entering_px(mv1, depth1, depth1f, a, behind, entering, xa + i, y, yh,
+                                     wf, hf, wm1, hm1, w)
             for i in range(n):
                 _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth,
                             mv, valid, color1, depth1, tk[i], out_c, out_d, out_m, out_v,
@@ -713,6 +710,7 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
     hf = F32(h)
     wsf = F32(ws)
     hsf = F32(hs)
+    d1f = depth1.reshape(hs * ws)  # (flat: the pixel index reads it without a division)
     for pr in prange(h):
         y = np.int64(pr)
         yh = F32(y) + HALF
@@ -728,9 +726,7 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
             iy = np.floor(sy)
             inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
             j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
-            jy = _div(j, ws)
-            jx = j - jy * ws
-            s = depth1[jy, jx]
+            s = d1f[j]
             s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
             s = FMAX if s > FMAX else s
             s = -FMAX if s < -FMAX else s
@@ -753,6 +749,7 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
     hf = F32(h)
     wsf = F32(ws)
     hsf = F32(hs)
+    d1f = depth1.reshape(hs * ws)  # (flat: the pixel index reads it without a division)
     for pr in prange(h):
         y = np.int64(pr)
         yh = F32(y) + HALF
@@ -768,9 +765,7 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
             iy = np.floor(sy)
             inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
             j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
-            jy = _div(j, ws)
-            jx = j - jy * ws
-            s = depth1[jy, jx]
+            s = d1f[j]
             s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
             s = FMAX if s > FMAX else s
             s = -FMAX if s < -FMAX else s
@@ -839,6 +834,7 @@ def hist_test_kernel(p3, xh, yh, ok, mv1, thr2, depth0, xp, yp, use, idx, d0g):
     hf = F32(h)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    d0f = depth0.reshape(h * w)  # (flat: read by the pixel index, no division)
     for pr in prange(h):
         y = np.int64(pr)
         yc = F32(y) + HALF
@@ -857,9 +853,7 @@ def hist_test_kernel(p3, xh, yh, ok, mv1, thr2, depth0, xp, yp, use, idx, d0g):
             n = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
             idx[y, x] = n
             use[y, x] = np.uint8(1) if (dyn & inside) else U0
-            ny = _div(n, w)
-            nx = n - ny * w
-            d0g[y, x] = depth0[ny, nx]
+            d0g[y, x] = d0f[n]
 
 
 @njit(**KERNEL)
@@ -907,6 +901,7 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
     One row loop per plane group and source (a single kind of read in each)."""
     k = out.shape[0]
     h, w = use.shape
+    pvf = prev.reshape((prev.shape[0], 4, prev.shape[2] * prev.shape[3]))  # (flat: idx)
     for pr in prange(h):
         y = np.int64(pr)
         ub = np.empty(w, dtype=np.float32)
@@ -916,15 +911,13 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
         if from_prev:
             for x in range(w):
                 n = idx[y, x]
-                ny = _div(n, w)
-                nx = n - ny * w
                 f = fb[y, x] != U0
                 p3 = p[3, y, x]
-                q3 = pf[3, y, x] if f else prev[0, 3, ny, nx]
+                q3 = pf[3, y, x] if f else pvf[0, 3, n]
                 u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
                 ub[x] = ONE if u else ZERO
                 for c in range(4):
-                    q = pf[c, y, x] if f else prev[0, c, ny, nx]
+                    q = pf[c, y, x] if f else pvf[0, c, n]
                     out[1, c, y, x] = q if u else p[c, y, x]
         else:
             for x in range(w):
@@ -942,13 +935,11 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
             if i - 1 < nprev:
                 for x in range(w):
                     n = idx[y, x]
-                    ny = _div(n, w)
-                    nx = n - ny * w
                     f = fb[y, x] != U0
-                    q3 = pf[3, y, x] if f else prev[i - 1, 3, ny, nx]
+                    q3 = pf[3, y, x] if f else pvf[i - 1, 3, n]
                     t = (ub[x] != ZERO) & (q3 == p[3, y, x])
                     for c in range(4):
-                        q = pf[c, y, x] if f else prev[i - 1, c, ny, nx]
+                        q = pf[c, y, x] if f else pvf[i - 1, c, n]
                         out[i, c, y, x] = q if t else p[c, y, x]
             else:  # P'_0 again (its kind is p's wherever the pixel is used)
                 for x in range(w):
@@ -1069,6 +1060,11 @@ def col_behind_kernel(px, py, dn, ok, l0d, l0v, d1, l1v, tol, sc, out):
     hf = F32(h)
     w2f = F32(w2)
     h2f = F32(h2)
+    # flat views: a flat pixel index reads them without a division
+    l0vf = l0v.reshape(l0v.size)
+    l0df = l0d.reshape(l0d.size)
+    d1f = d1.reshape(d1.size)
+    l1vf = l1v.reshape(l1v.size)
     for pr in prange(hs):
         y = np.int64(pr)
         for x in range(ws):
@@ -1078,18 +1074,14 @@ def col_behind_kernel(px, py, dn, ok, l0d, l0v, d1, l1v, tol, sc, out):
             iy = np.floor(b)
             inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf) & (ok[y, x] != U0)
             n = np.int64(clamp_b(iy, ZERO, hf - ONE) * wf + clamp_b(ix, ZERO, wf - ONE))
-            ny = _div(n, w)
-            nx = n - ny * w
-            av = l0v[ny, nx] != U0
-            ad = l0d[ny, nx] if av else d1[ny, nx]
+            av = l0vf[n] != U0
+            ad = l0df[n] if av else d1f[n]
             d = dn[y, x]
             beh = inside & (d > ad * tol) & (av | (ad > ZERO))
             jx = np.floor(a / sc)
             jy = np.floor(b / sc)
             m = np.int64(clamp_b(jy, ZERO, h2f - ONE) * w2f + clamp_b(jx, ZERO, w2f - ONE))
-            my = _div(m, w2)
-            mx = m - my * w2
-            free = l1v[my, mx] == U0
+            free = l1vf[m] == U0
             out[y, x] = np.uint8(1) if (beh & free) else U0
 
 
@@ -1098,16 +1090,14 @@ def layer_fill_kernel(src, dep, pc, lc, ld, lv):
     """A splat's winners into a layer, in place: cells without a valid fragment whose
     splat has a winner take its colour (pc at the flat source index), depth, validity."""
     h, w = src.shape
-    ws = pc.shape[2]
+    pcf = pc.reshape((3, pc.shape[1] * pc.shape[2]))  # (flat: the source index)
     for pr in prange(h):
         y = np.int64(pr)
         for x in range(w):
             s = src[y, x]
             f = (s >= 0) & (lv[y, x] == U0)
             sc = max(s, np.int64(0))
-            sy = _div(sc, ws)
-            sx = sc - sy * ws
             for k in range(3):
-                lc[k, y, x] = pc[k, sy, sx] if f else lc[k, y, x]
+                lc[k, y, x] = pcf[k, sc] if f else lc[k, y, x]
             ld[y, x] = dep[y, x] if f else ld[y, x]
             lv[y, x] = np.uint8(1) if (f | (lv[y, x] != U0)) else U0
