@@ -473,7 +473,17 @@ def _inpaint(values, weight, holes, mode, decay, eps):
     lev = [None, lev1]
     while lev[-1].shape[1] > 1 or lev[-1].shape[2] > 1:
         lev.append(avg_pool2(lev[-1]))
-    return PY.fill_from_levels(out, hout, torch.from_numpy(idx), lev, mode, decay, eps)
+    return PY.fill_from_levels(out, hout, torch.from_numpy(idx), lev, mode, decay, eps,
+                               sample=_level_sample)
+
+
+def _level_sample(level, i, xs, ys):
+    """fgcli.ops.pyramid._sample_level by level_sample_kernel (the same values)."""
+    from fgcli.kernels.pyramid import level_sample_kernel
+
+    out = _empty(level.shape[0], xs.shape[0])
+    level_sample_kernel(_a(level), F32(float(2 ** i)), _a(xs), _a(ys), out.numpy())
+    return out
 
 
 def fill_vector_field(vec, priority, valid):
@@ -613,7 +623,7 @@ def _cache_cold(families=None) -> bool:
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
-                    pyramid.hole_index_kernel,
+                    pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
                     field.depth_clamp_kernel, field.depth_rank_kernel,

@@ -7,6 +7,8 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, KERNEL, sval_b
+from fgcli.kernels._intrin import fma
+from fgcli.kernels.warp import _grid_coords
 
 U0 = np.uint8(0)
 U1 = np.uint8(1)
@@ -135,3 +137,53 @@ def hole_index_kernel(hout, start, idx):
                 if hout[y, x] != U0:
                     idx[k] = y * w + x
                     k += 1
+
+
+@njit(**KERNEL)
+def level_sample_kernel(level, s, xs, ys, out):
+    """fgcli.ops.pyramid._sample_level: level (C, h, w) read bilinearly (grid_sample,
+    border, align_corners=False: fgcli.kernels.warp's arithmetic) at the full-resolution
+    pixels (xs, ys) (N,) scaled by s = 2**i, the grid point worked out as the reference's
+    float32 ops ((x + 0.5) / s / w * 2 - 1); out (C, N)."""
+    c, hl, wl = level.shape
+    hw = F32(wl * 0.5)
+    hh = F32(hl * 0.5)
+    wm1 = F32(wl - 1)
+    hm1 = F32(hl - 1)
+    fw = F32(wl)
+    fh = F32(hl)
+    flat = level.reshape((c, hl * wl))
+    n = xs.shape[0]
+    nch = (n + 4095) // 4096
+    for pc in prange(nch):
+        j0 = np.int64(pc) * 4096
+        m = min(4096, n - j0)
+        xr = xs[j0:j0 + m]
+        yr = ys[j0:j0 + m]
+        i00 = np.empty(m, dtype=np.int64)  # flat taps and weights, then one gather loop
+        i01 = np.empty(m, dtype=np.int64)  # per channel (a channel loop of runtime
+        i10 = np.empty(m, dtype=np.int64)  # length inside the point loop stays scalar)
+        i11 = np.empty(m, dtype=np.int64)
+        wnw = np.empty(m, dtype=np.float32)
+        wne = np.empty(m, dtype=np.float32)
+        wsw = np.empty(m, dtype=np.float32)
+        wse = np.empty(m, dtype=np.float32)
+        for j in range(m):
+            gx = (((xr[j] + F32(0.5)) / s) / fw) * F32(2.0) - F32(1.0)
+            gy = (((yr[j] + F32(0.5)) / s) / fh) * F32(2.0) - F32(1.0)
+            y0, x0, y1, x1, nw, ne, sw, se = _grid_coords(gx, gy, hw, hh, wm1, hm1, wl, hl)
+            i00[j] = y0 * wl + x0
+            i01[j] = y0 * wl + x1
+            i10[j] = y1 * wl + x0
+            i11[j] = y1 * wl + x1
+            wnw[j] = nw
+            wne[j] = ne
+            wsw[j] = sw
+            wse[j] = se
+        for k in range(c):
+            lf = flat[k]
+            o = out[k, j0:j0 + m]
+            for j in range(m):
+                o[j] = fma(sval_b(lf[i11[j]]), wse[j],
+                           fma(sval_b(lf[i10[j]]), wsw[j],
+                               fma(sval_b(lf[i01[j]]), wne[j], sval_b(lf[i00[j]]) * wnw[j])))

@@ -19,8 +19,12 @@ from fgcli.kernels._intrin import fma
 def _coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
     """Bilinear taps and weights of grid_sample(bilinear, border, align_corners=False) on
     the normalised grid ``gxn + f * 2 / w``: (y0, x0, y1, x1, nw, ne, sw, se)."""
-    gx = fma(fx, kx, gxn_x)
-    gy = fma(fy, ky, gyy)
+    return _grid_coords(fma(fx, kx, gxn_x), fma(fy, ky, gyy), hw, hh, wm1, hm1, w, h)
+
+
+@njit(**INLINE)
+def _grid_coords(gx, gy, hw, hh, wm1, hm1, w, h):
+    """_coords at the normalised grid point (gx, gy) itself."""
     # unnormalise ((g + 1) * size / 2 - 0.5, one FMA as ATen's vectorised kernel is
     # compiled) and clip to the border
     ix = clamp_b(fma(gx + F32(1.0), hw, F32(-0.5)), F32(0.0), wm1)

@@ -125,10 +125,12 @@ def checked_inpaint_args(values, weight, holes, mode, decay):
 
 
 def fill_from_levels(out, holes, idx, lev, mode="blend", decay=10.0, eps=1e-12,
-                     dense=False):
+                     dense=False, sample=None):
     """pyramid_inpaint's second half: the hole pixels (flat indices idx, or every pixel
     when dense) read the levels 1.. of lev (level 0 is not read: it may be None) into out
-    (C, H, W, written in place unless dense). Returns (out, filled)."""
+    (C, H, W, written in place unless dense). sample: _sample_level or a function with its
+    signature and values (the numba backend's). Returns (out, filled)."""
+    sample = sample or _sample_level
     c, h, w = out.shape
     filled = torch.zeros(1, h, w, dtype=torch.bool, device=out.device)
     ys = torch.div(idx, w, rounding_mode="floor").to(torch.float32)
@@ -142,14 +144,14 @@ def fill_from_levels(out, holes, idx, lev, mode="blend", decay=10.0, eps=1e-12,
             m = max(0.0, 1.0 - i / decay) ** 3
             if m <= 0.0:
                 break
-            acc.add_(_sample_level(lev[i], i, xs, ys), alpha=m)
+            acc.add_(sample(lev[i], i, xs, ys), alpha=m)
         ok = acc[c] > eps
         res = torch.where(ok[None], acc[:c] / acc[c:].clamp(min=eps), res)
         done = ok
     for i in range(1, len(lev)):
         if not dense and bool(done.all()):
             break
-        s = _sample_level(lev[i], i, xs, ys)
+        s = sample(lev[i], i, xs, ys)
         ok = (s[c] > eps) & ~done
         res = torch.where(ok[None], s[:c] / s[c:].clamp(min=eps), res)
         done = done | ok
