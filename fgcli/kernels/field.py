@@ -41,33 +41,27 @@ _CHUNK = 2048  # sources per vectorised footprint pass
 
 
 @njit(**KERNEL)
-def field_scatter_kernel(pos, key0, key1, dist, d, h, w, thr, steps, buf0, buf1, sec0, sec1):
-    """vector_field's scatter, both components (one per thread: prange over the two).
+def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
+    """vector_field's primary scatter, one component per thread (prange over the two).
     pos (2, N) float32 footprint positions; key0, key1 (N,) int64 primary entries of the
-    components; dist (N,)
-    float32 secondary walk lengths; d (2, N) float32 unit steps; steps: secondary steps
-    (0: none); buf0, buf1, sec0, sec1 ((h+2)*(w+2),) int64 scratch (zeroed here; sec
-    unused without steps) -> buf0, buf1 = max(primary, secondary) entries of the
-    components (the caller crops the ring). One buffer per component: below glibc's mmap
-    threshold (fgcli.sysutil.tune_allocator), so a frame's buffers reuse the last frame's
-    memory instead of faulting in fresh pages (a (2, N) pair did, about 5 ms each).
+    components -> buf0, buf1 ((h+2)*(w+2),) int64, zeroed here, the maximum entry written
+    into each texel (the caller crops the ring). One buffer per component: below glibc's
+    mmap threshold (fgcli.sysutil.tune_allocator), so a frame's buffers reuse the last
+    frame's memory instead of faulting in fresh pages (a (2, N) pair did, about 5 ms each).
+    The footprints are worked out in vectorised passes over chunks of sources (slices: an
+    index with a signed offset stops LLVM from vectorising), then a plain loop takes the
+    maxima.
 
-    The components are independent (each source writes both at the same taps with the
-    same priority bits, so a texel's primary flag is the same in both: the secondary walk
-    of either counts the same hits). The primary footprints are worked out in vectorised
-    passes over chunks of sources (slices: an index with a signed offset stops LLVM from
-    vectorising), then a plain loop takes the maxima."""
+    Three kernels (this one, field_walk_kernel, field_merge_kernel), not three prange
+    loops in one: numba fuses consecutive parallel loops of the same length, which would
+    run a walk before the other component's primaries exist."""
     n = pos.shape[1]
     w2 = w + 2
     for pc in prange(2):
         c = np.int64(pc)
         buf = buf0 if c == 0 else buf1
-        sec = sec0 if c == 0 else sec1
         for q in range(buf.shape[0]):
             buf[q] = 0
-        if steps >= 1:
-            for q in range(sec.shape[0]):
-                sec[q] = 0
         q0 = np.empty(_CHUNK, dtype=np.int64)
         dx = np.empty(_CHUNK, dtype=np.int64)
         dy = np.empty(_CHUNK, dtype=np.int64)
@@ -103,35 +97,70 @@ def field_scatter_kernel(pos, key0, key1, dist, d, h, w, thr, steps, buf0, buf1,
                     buf[q2] = k2[j]
                 if k3[j] > buf[q3]:
                     buf[q3] = k3[j]
-        if steps < 1:
-            continue
+
+
+@njit(**KERNEL)
+def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, sa0, sa1, sb0, sb1):
+    """vector_field's secondary walk after field_scatter_kernel, both components in one
+    walk: dist (N,) float32 walk lengths, d (2, N) unit steps, at most ``steps`` steps;
+    sa0, sa1 / sb0, sb1 the two threads' secondary entries (zeroed here). A source's walk
+    is the same for both components (each source wrote both at the same taps with the
+    same priority bits, so a texel's primary flag is the same in both buffers and buf0's
+    count is either's), so each thread walks half of the sources (alternate blocks of 16
+    rows) once and writes both components into its own buffers; field_merge_kernel then
+    takes the maxima (their order does not matter: the serial walk's result)."""
+    w2 = w + 2
+    for pt in prange(2):
+        t = np.int64(pt)
+        s0 = sa0 if t == 0 else sb0
+        s1 = sa1 if t == 0 else sb1
+        for q in range(s0.shape[0]):
+            s0[q] = 0
+            s1[q] = 0
         # secondary entries walk back from the footprint, counting primary texels hit
-        for i in range(n):
-            di = dist[i]
-            if not di >= F32(1.0):
+        for y in range(h):
+            if ((y >> 4) & 1) != t:
                 continue
-            a = (key0[i] if c == 0 else key1[i]) - _PRIMARY
-            hits = 0
-            for k in range(1, steps + 1):
-                if not (di >= F32(k)) or hits > 3:
-                    break
-                kf = F32(k)
-                qx = pos[0, i] - d[0, i] * kf
-                qy = pos[1, i] - d[1, i] * kf
-                xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-                yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
-                if xi < 1 or xi > w or yi < 1 or yi > h:
+            for x in range(w):
+                i = y * w + x
+                di = dist[i]
+                if not di >= F32(1.0):
                     continue
-                q = yi * w2 + xi
-                if buf[q] >= _PRIMARY:
-                    hits += 1
-                if hits > 3:
-                    continue
-                if a > sec[q]:
-                    sec[q] = a
+                a0 = key0[i] - _PRIMARY
+                a1 = key1[i] - _PRIMARY
+                hits = 0
+                for k in range(1, steps + 1):
+                    if not (di >= F32(k)) or hits > 3:
+                        break
+                    kf = F32(k)
+                    qx = pos[0, i] - d[0, i] * kf
+                    qy = pos[1, i] - d[1, i] * kf
+                    xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+                    yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+                    if xi < 1 or xi > w or yi < 1 or yi > h:
+                        continue
+                    q = yi * w2 + xi
+                    if buf0[q] >= _PRIMARY:
+                        hits += 1
+                    if hits > 3:
+                        continue
+                    if a0 > s0[q]:
+                        s0[q] = a0
+                    if a1 > s1[q]:
+                        s1[q] = a1
+
+
+@njit(**KERNEL)
+def field_merge_kernel(buf0, buf1, sa0, sa1, sb0, sb1):
+    """buf_c = max(buf_c, sa_c, sb_c): the walk's secondary entries into the field."""
+    for pc in prange(2):
+        c = np.int64(pc)
+        buf = buf0 if c == 0 else buf1
+        sa = sa0 if c == 0 else sa1
+        sb = sb0 if c == 0 else sb1
         for q in range(buf.shape[0]):
-            if sec[q] > buf[q]:
-                buf[q] = sec[q]
+            m = sa[q] if sa[q] > sb[q] else sb[q]
+            buf[q] = m if m > buf[q] else buf[q]
 
 
 @njit(**KERNEL)

@@ -619,7 +619,8 @@ def _cache_cold(families=None) -> bool:
         if HAVE_MPSADBW:  # (compiled only where it runs)
             kernels += (flow.block_search_sad_kernel,)
         kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
-                    field.field_scatter_kernel,
+                    field.field_scatter_kernel, field.field_walk_kernel,
+                    field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
@@ -869,10 +870,14 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
         steps = int(min(max_secondary, np.floor(walk[2])))
         if steps >= 1:
             dist, d = walk[0], walk[1]
-    sec = [np.empty(n if steps >= 1 else 1, dtype=np.int64) for _ in range(2)]
-    # the components are independent scatters: one thread each
-    field_scatter_kernel(_a(pos), _a(keys[0]), _a(keys[1]), dist.reshape(-1), d, h, w,
-                         F32(tap_threshold), steps, buf[0], buf[1], sec[0], sec[1])
+    pa, k0, k1 = _a(pos), _a(keys[0]), _a(keys[1])
+    field_scatter_kernel(pa, k0, k1, h, w, F32(tap_threshold), buf[0], buf[1])
+    if steps >= 1:
+        from fgcli.kernels.field import field_merge_kernel, field_walk_kernel
+
+        sec = [np.empty(n, dtype=np.int64) for _ in range(4)]  # (zeroed by the kernel)
+        field_walk_kernel(pa, k0, k1, dist.reshape(-1), d, h, w, steps, buf[0], *sec)
+        field_merge_kernel(buf[0], buf[1], *sec)
     out = torch.stack([FS._crop(torch.from_numpy(b), h, w)[0] for b in buf])
     return out
 
