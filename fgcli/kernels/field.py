@@ -100,23 +100,26 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
 
 
 @njit(**KERNEL)
-def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, sa0, sa1, sb0, sb1):
+def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1, sb0, sb1):
     """vector_field's secondary walk after field_scatter_kernel, both components in one
-    walk: dist (N,) float32 walk lengths, d (2, N) unit steps, at most ``steps`` steps;
-    sa0, sa1 / sb0, sb1 the two threads' secondary entries (zeroed here). A source's walk
-    is the same for both components (each source wrote both at the same taps with the
-    same priority bits, so a texel's primary flag is the same in both buffers and buf0's
-    count is either's), so each thread walks half of the sources (alternate blocks of 16
-    rows) once and writes both components into its own buffers; field_merge_kernel then
-    takes the maxima (their order does not matter: the serial walk's result)."""
+    walk: dist (N,) float32 walk lengths, d (2, N) unit steps, at most ``steps`` steps.
+    A source's walk is the same for both components (each source wrote both at the same
+    taps with the same priority bits, so a texel's primary flag is the same in both
+    buffers and buf0's count is either's), so each thread walks half of the sources
+    (alternate blocks of 16 rows) once and writes both components: the first thread into
+    buf0 / buf1 themselves, the second into sb0 / sb1 (zeroed here), which
+    field_merge_kernel then takes the maxima of (their order does not matter: the serial
+    walk's result). The first thread's writes never change a flag the second reads: a
+    secondary entry (below 2**31) only replaces a smaller one."""
     w2 = w + 2
     for pt in prange(2):
         t = np.int64(pt)
-        s0 = sa0 if t == 0 else sb0
-        s1 = sa1 if t == 0 else sb1
-        for q in range(s0.shape[0]):
-            s0[q] = 0
-            s1[q] = 0
+        s0 = buf0 if t == 0 else sb0
+        s1 = buf1 if t == 0 else sb1
+        if t != 0:
+            for q in range(s0.shape[0]):
+                s0[q] = 0
+                s1[q] = 0
         # secondary entries walk back from the footprint, counting primary texels hit
         for y in range(h):
             if ((y >> 4) & 1) != t:
@@ -151,16 +154,14 @@ def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, sa0, sa1, sb0
 
 
 @njit(**KERNEL)
-def field_merge_kernel(buf0, buf1, sa0, sa1, sb0, sb1):
-    """buf_c = max(buf_c, sa_c, sb_c): the walk's secondary entries into the field."""
+def field_merge_kernel(buf0, buf1, sb0, sb1):
+    """buf_c = max(buf_c, sb_c): the second walking thread's entries into the field."""
     for pc in prange(2):
         c = np.int64(pc)
         buf = buf0 if c == 0 else buf1
-        sa = sa0 if c == 0 else sa1
         sb = sb0 if c == 0 else sb1
         for q in range(buf.shape[0]):
-            m = sa[q] if sa[q] > sb[q] else sb[q]
-            buf[q] = m if m > buf[q] else buf[q]
+            buf[q] = sb[q] if sb[q] > buf[q] else buf[q]
 
 
 @njit(**KERNEL)

@@ -875,8 +875,8 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     if steps >= 1:
         from fgcli.kernels.field import field_merge_kernel, field_walk_kernel
 
-        sec = [np.empty(n, dtype=np.int64) for _ in range(4)]  # (zeroed by the kernel)
-        field_walk_kernel(pa, k0, k1, dist.reshape(-1), d, h, w, steps, buf[0], *sec)
+        sec = [np.empty(n, dtype=np.int64) for _ in range(2)]  # (zeroed by the kernel)
+        field_walk_kernel(pa, k0, k1, dist.reshape(-1), d, h, w, steps, buf[0], buf[1], *sec)
         field_merge_kernel(buf[0], buf[1], *sec)
     out = torch.stack([FS._crop(torch.from_numpy(b), h, w)[0] for b in buf])
     return out
