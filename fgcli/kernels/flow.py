@@ -90,6 +90,21 @@ def _block_window(cur, prev, oy, ox, py, px, block, search, cb, cst, wb, wst):
                 wb[wst * r + c] = prev[yy, min(max(x0 + c, 0), w - 1)]
 
 
+@njit(inline="always", cache=True)
+def _argmin16(sads, dy, best, bi, bj):
+    """The reference's tie rule over one window row's sixteen offsets (sads, dx = 0..15, at
+    row dy of the 8x8 / -8..7 search): the least ``SAD * 64 + |dx - 8| + |dy - 8|``, the
+    first in (dy, dx) order on ties; returns the running (best, bi, bj)."""
+    ody = abs(dy - 8)
+    for dx in range(16):
+        key = np.int64(sads[dx]) * 64 + (abs(dx - 8) + ody)
+        if key < best:
+            best = key
+            bi = dy
+            bj = dx
+    return best, bi, bj
+
+
 @njit(**dict(KERNEL, fastmath=SAD_MATH))
 def block_search_kernel(cur, prev, pred, block, search, out):
     """cur, prev (h, w) int32 8-bit luminances (frame 1, frame 0); pred (2, nby, nbx) int64
@@ -117,14 +132,7 @@ def block_search_kernel(cur, prev, pred, block, search, out):
             bj = 0
             if block == 8 and search == 8:  # FSR 3's sizes: sixteen offsets at a time
                 for dy in range(16):
-                    sads = _sads16(wb, cb, dy)
-                    ody = abs(dy - 8)
-                    for dx in range(16):
-                        key = np.int64(sads[dx]) * 64 + (abs(dx - 8) + ody)
-                        if key < best:
-                            best = key
-                            bi = dy
-                            bj = dx
+                    best, bi, bj = _argmin16(_sads16(wb, cb, dy), dy, best, bi, bj)
                 out[0, by, bx] = px + bj - search
                 out[1, by, bx] = py + bi - search
                 continue
@@ -171,13 +179,7 @@ def block_search_sad_kernel(cur, prev, pred, out):
             bj = 0
             for dy in range(16):
                 sad16_rows(wb, 24 * dy, 24, cb, 0, s16)
-                ody = abs(dy - 8)
-                for dx in range(16):
-                    key = np.int64(s16[dx]) * 64 + (abs(dx - 8) + ody)
-                    if key < best:
-                        best = key
-                        bi = dy
-                        bj = dx
+                best, bi, bj = _argmin16(s16, dy, best, bi, bj)
             out[0, by, bx] = px + bj - 8
             out[1, by, bx] = py + bi - 8
 
