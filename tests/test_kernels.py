@@ -589,6 +589,39 @@ def test_fsr3_scatters(h, w):
                 same("depth (short vectors)", k, r)
 
 
+def test_fsr3_lengths_take_torchs_sqrt():
+    """The short-vector test of depth reconstruction and the secondary walk's lengths use
+    torch.sqrt over the whole plane, as the reference (MKL's on x86 builds, which differs
+    from IEEE sqrt by one ulp on some inputs, and by position in the array): thresholds
+    set at the reference's own length of vectors where its sqrt and IEEE's differ (where
+    torch's is the larger, a kernel with its own sqrt calls the vector short), and the
+    secondary walk over such lengths, both against the reference."""
+    import numpy as np
+
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(3)
+    h, w = 48, 64
+    v = torch.zeros(2, h, w)
+    v[0] = torch.rand(h, w, generator=g) * 40 + 1
+    v[1] = torch.rand(h, w, generator=g) * 3
+    ref_len = fsr3._length(v.reshape(2, -1))  # the reference's lengths, in place
+    ss = (v.reshape(2, -1) ** 2).sum(0)
+    ieee = torch.from_numpy(np.sqrt(ss.numpy()))
+    picks = (ref_len > ieee).nonzero().view(-1)[:4].tolist() or [0]
+    d = torch.rand(1, h, w, generator=g) + 1.0
+    for i in picks:
+        short = float(ref_len[i])
+        for a, b in zip(K.reconstruct_depths(d, v, 0.5, short_mv=short),
+                        fsr3.reconstruct_depths(d, v, 0.5, short_mv=short)):
+            same("depth (torch's sqrt)", a, b)
+    c0, c1, _, _ = _fsr3_inputs(h, w, 5)
+    hi = fsr3.depth_priority(d)
+    for a in (0.0, 0.5):
+        same("field (torch's sqrt)", K.vector_field(c0, c1, v, hi, a, True, 64),
+             fsr3.vector_field(c0, c1, v, hi, a, True, 64))
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_masks_and_interpolation(h, w):
     """FSR 3's disocclusion masks and interpolation pass: one kernel pass each, the

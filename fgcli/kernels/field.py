@@ -165,11 +165,12 @@ def field_merge_kernel(buf0, buf1, sb0, sb1):
 
 
 @njit(**KERNEL)
-def depth_scatter_pair_kernel(depth, mv, short, ks, thr, bufs):
+def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, bufs):
     """reconstruct_depths' two scatters with the sources computed in the kernel (the
-    reference's depth_sources: sanitised depth, sanitised vector zeroed when shorter than
-    ``short``, position p + v * ks[t], each product and sum rounded on its own): depth
-    (H, W), mv (2, H, W), ks (2,) float32 -> bufs (2, (H+2)*(W+2)) float32 (+inf
+    reference's depth_sources: sanitised depth, sanitised vector zeroed when its length
+    (lens (H, W): torch.sqrt of length_kernel's squares, MKL's as the reference's) is
+    shorter than ``short``, position p + v * ks[t], each product and sum rounded on its
+    own): depth (H, W), mv (2, H, W), ks (2,) float32 -> bufs (2, (H+2)*(W+2)) float32 (+inf
     initialised), the minimum depth written into each texel's footprint taps.
 
     One target time per thread (prange over the two). Per row, the footprints are worked
@@ -198,7 +199,7 @@ def depth_scatter_pair_kernel(depth, mv, short, ks, thr, bufs):
             for x in range(w):
                 vx = smv_b(mx[x])
                 vy = smv_b(my[x])
-                keep = F32(1.0) if np.sqrt(vx * vx + vy * vy) >= short else F32(0.0)
+                keep = F32(1.0) if lens[y, x] >= short else F32(0.0)
                 px = F32(x) + (vx * keep) * k
                 py = yf + (vy * keep) * k
                 xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px, py, h, w, thr)
@@ -296,16 +297,15 @@ def luma_plane_kernel(c, out):
 
 
 @njit(**KERNEL)
-def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist, d,
-                   rowmax):
+def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
     so a tap is one gather, not three): frame 0's luminance read bilinearly at
     p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
     luminance at p, the packed primary entries of both components (keys (2, H, W) int64)
     and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
-    ``sec``: the secondary walk's lengths dist = |(1 - alpha) v| (H, W), unit steps d =
-    v / max(dist, 1e-6) (2, H, W) and each row's longest (rowmax (H,)), the reference's
-    float32 operations (dist: a product, the sum of the two squares, IEEE sqrt)."""
+    ``sec``: dist (H, W) = the squared length of (1 - alpha) v (the reference's products
+    and sum); the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom)
+    and then walk_steps_kernel the unit steps."""
     h, w = hi.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -348,21 +348,38 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist, 
             keys[1, y, x] = _pack(prio, vy)
             pos[0, y, x] = F32(x) + vx * a1
             pos[1, y, x] = yf + vy * a1
-        if sec:  # the secondary walk's lengths and unit steps
+        if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
             for x in range(w):
-                vx = smv_b(vec[0, y, x])
-                vy = smv_b(vec[1, y, x])
-                t0 = vx * a1
-                t1 = vy * a1
-                dd = np.sqrt(t0 * t0 + t1 * t1)
-                dist[y, x] = dd
-                c = F32(1e-6) if dd < F32(1e-6) else dd
-                d[0, y, x] = vx / c
-                d[1, y, x] = vy / c
-            m = F32(0.0)
-            for x in range(w):  # (a reduction in the loop above would stop it vectorising)
-                m = dist[y, x] if dist[y, x] > m else m
-            rowmax[y] = m
+                t0 = smv_b(vec[0, y, x]) * a1
+                t1 = smv_b(vec[1, y, x]) * a1
+                dist[y, x] = t0 * t0 + t1 * t1
+
+
+@njit(**KERNEL)
+def walk_steps_kernel(vec, dist, d):
+    """The secondary walk's unit steps d (2, H, W) = sanitize_mv(vec) / max(dist, 1e-6),
+    dist (H, W) the walk lengths (torch.sqrt of entries_kernel's squares)."""
+    h, w = dist.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            dd = dist[y, x]
+            c = F32(1e-6) if dd < F32(1e-6) else dd
+            d[0, y, x] = smv_b(vec[0, y, x]) / c
+            d[1, y, x] = smv_b(vec[1, y, x]) / c
+
+
+@njit(**KERNEL)
+def length_kernel(mv, ss):
+    """ss (H, W) = the squared length of sanitize_mv(mv) (the reference's _length before
+    its torch.sqrt)."""
+    h, w = ss.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            vx = smv_b(mv[0, y, x])
+            vy = smv_b(mv[1, y, x])
+            ss[y, x] = vx * vx + vy * vy
 
 
 @njit(**INLINE)

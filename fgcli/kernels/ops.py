@@ -628,6 +628,7 @@ def _cache_cold(families=None) -> bool:
                     flow.luma_clip_kernel, flow.luma_encode_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
                     field.depth_clamp_kernel, field.depth_rank_kernel,
+                    field.walk_steps_kernel, field.length_kernel,
                     fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
 
@@ -821,14 +822,19 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False):
     pos, keys = _empty(2, h, w), _empty(2, h, w, dtype=torch.int64)
     l0 = np.empty((h, w), dtype=np.float32)
     luma_plane_kernel(_a(color0), l0)
-    if sec:
-        dist, d = np.empty((h, w), dtype=np.float32), np.empty((2, h, w), dtype=np.float32)
-        rowmax = np.empty(h, dtype=np.float32)
-    else:
-        dist, d, rowmax = l0, l0[None], np.empty(1, dtype=np.float32)  # (unwritten)
-    entries_kernel(l0, _a(color1), _a(vec), _a(hi).reshape(h, w), F32(1.0 - a), gxn,
-                   gyn, kx, ky, pos.numpy(), keys.numpy(), bool(sec), dist, d, rowmax)
-    walk = (dist.reshape(-1), d.reshape(2, -1), float(rowmax.max())) if sec and h * w else None
+    dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
+    va = _a(vec)
+    entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn,
+                   gyn, kx, ky, pos.numpy(), keys.numpy(), bool(sec), dist)
+    walk = None
+    if sec and h * w:
+        from fgcli.kernels.field import walk_steps_kernel
+
+        dt = torch.from_numpy(dist)
+        torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
+        d = np.empty((2, h, w), dtype=np.float32)
+        walk_steps_kernel(va, dist, d)
+        walk = (dist.reshape(-1), d.reshape(2, -1), float(dt.max()))
     return pos.view(2, -1), [keys[0].view(-1), keys[1].view(-1)], (h, w, a), walk
 
 
@@ -897,7 +903,13 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
     h, w = depth.shape[-2:]
     bufs = np.full((2, (h + 2) * (w + 2)), np.inf, dtype=np.float32)
     ks = np.array([1.0, 1.0 - a], dtype=np.float32)  # torch rounds the scalars so
-    depth_scatter_pair_kernel(_a(depth)[0], _a(mv), F32(short_mv), ks, F32(tap_threshold),
+    from fgcli.kernels.field import length_kernel
+
+    ma = _a(mv)
+    lens = np.empty((h, w), dtype=np.float32)
+    length_kernel(ma, lens)
+    torch.sqrt(torch.from_numpy(lens), out=torch.from_numpy(lens))  # (MKL's, as _length)
+    depth_scatter_pair_kernel(_a(depth)[0], ma, lens, F32(short_mv), ks, F32(tap_threshold),
                               bufs)
     out = FS._crop(torch.from_numpy(bufs), h, w)  # (2, H, W)
     return out[0:1].clone(), out[1:2].clone()
