@@ -211,10 +211,11 @@ def warp_frames(color1, depth1, to1, color0=None, depth0=None, to0=None, mode="b
         to0 = check_tensor(to0, "flow", 2)
         depth0 = check_tensor(depth0, "img")
         check_same(color0, "img", (to0, "flow"), (depth0, "depth"))
+    from fgcli.kernels.warp import flat_ok, warp_kernel
+
     if depth1.shape[0] != 1 or (two and depth0.shape[0] != 1) or color1.shape[0] != 3 or \
-            (two and color0.shape[0] != 3):
+            (two and color0.shape[0] != 3) or not flat_ok(*color1.shape[1:], 3):
         return RF.warp_frames(color1, depth1, to1, color0, depth0, to0, mode)
-    from fgcli.kernels.warp import warp_kernel
 
     c, h, w = color1.shape
     gxn, gyn, kx, ky = _grid(h, w)

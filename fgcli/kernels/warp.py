@@ -12,7 +12,9 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sflow_b, smv_b, sval_b
-from fgcli.kernels._intrin import fma
+from fgcli.kernels._intrin import fma, ld32, ld_pair, mad32
+
+I32 = np.int32
 
 
 @njit(**INLINE)
@@ -59,6 +61,62 @@ def _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se):
 
 
 @njit(**INLINE)
+def _flat_coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
+    """_coords for the 32-bit pair loads (w, h int32; the caller checks 2 <= w and
+    planes * h * w < 2**31): (p, rs, xi, nw, ne, sw, se), where the taps (x0, x1) of row
+    y0 are elements p, p + 1 of a plane (p = y0 * w + x0, or one left when x0 is the last
+    column: x1 = x0 there and its weight is 0), row y1's are p + rs, xi = 1 when x1 = x0 + 1.
+    Same weights as _coords."""
+    ix = clamp_b(fma(fma(fx, kx, gxn_x) + F32(1.0), hw, F32(-0.5)), F32(0.0), wm1)
+    iy = clamp_b(fma(fma(fy, ky, gyy) + F32(1.0), hh, F32(-0.5)), F32(0.0), hm1)
+    x0f = np.floor(ix)
+    y0f = np.floor(iy)
+    tx = ix - x0f
+    ty = iy - y0f
+    e = F32(1.0) - tx
+    s = F32(1.0) - ty
+    x0 = I32(x0f)
+    y0 = I32(y0f)
+    xin = x0 + I32(1) < w
+    yin = y0 + I32(1) < h
+    nw = s * e
+    ne = s * tx if xin else F32(0.0)
+    sw = ty * e if yin else F32(0.0)
+    se = ty * tx if (xin & yin) else F32(0.0)
+    # (xi is an int: a bool in the returned tuple counts as a possible array alias in
+    # numba's parfor analysis, which then drops noalias and the loop is not vectorised)
+    return (mad32(y0, w, x0 - (I32(0) if xin else I32(1))), w if yin else I32(0),
+            I32(1) if xin else I32(0), nw, ne, sw, se)
+
+
+@njit(**INLINE)
+def _bil_pair(img, p, rs, xi, nw, ne, sw, se):
+    """_bil from two pair loads at flat index p (the channel's plane offset included) and
+    p + rs: the same four values (x1 = x0 at the last column reads x0 twice) and sum."""
+    a, b = ld_pair(img, p)
+    vnw = sval_b(a if xi != 0 else b)
+    vne = sval_b(b)
+    a, b = ld_pair(img, mad32(rs, I32(1), p))
+    vsw = sval_b(a if xi != 0 else b)
+    vse = sval_b(b)
+    return fma(vse, se, fma(vsw, sw, fma(vne, ne, vnw * nw)))
+
+
+@njit(**INLINE)
+def _nearest_depth32(depth, fx, fy, xf, yf, wm1, hm1, w):
+    """_nearest_depth through a 32-bit index (w int32)."""
+    jx = clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1)
+    jy = clamp_b(np.floor(fy + (yf + F32(0.5))), F32(0.0), hm1)
+    v = ld32(depth, mad32(I32(jy), w, I32(jx)))
+    return INF if v != v else v
+
+
+def flat_ok(h: int, w: int, planes: int) -> bool:
+    """Whether the pair-load kernels apply: 2 <= w and every flat index fits int32."""
+    return w >= 2 and planes * h * w < 2 ** 31
+
+
+@njit(**INLINE)
 def _nearest_depth(depth, fx, fy, xf, yf, wm1, hm1):
     """sample_nearest of a (H, W) depth at the sanitised flow; NaN -> +inf."""
     jx = clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1)
@@ -75,33 +133,38 @@ def _nearest_depth(depth, fx, fy, xf, yf, wm1, hm1):
 
 @njit(**INLINE)
 def _warp_px(c, d, to, s, sd, v, x, y, oy, xf, yf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh,
-             wm1, hm1, w, h):
+             wm1, hm1, w, h, hw32):
     """One frame at pixel (x, y): colour (bilinear, 3 channels) and depth (nearest) along
     ``to``, written to row ``oy`` of s, sd, v (y itself, or 0 of a row buffer); valid =
     inside_mask on the raw offset (NaN -> False); zero flow returns the sanitised pixel
-    exactly."""
+    exactly. w, h, hw32 (= h * w) int32: the taps are 32-bit pair loads."""
     rx = to[0, y, x]
     ry = to[1, y, x]
     v[oy, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
     fx = sflow_b(rx)
     fy = sflow_b(ry)
     zero = (fx == F32(0.0)) & (fy == F32(0.0))
-    y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
+    p, rs, xi, nw, ne, sw, se = _flat_coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1,
+                                             w, h)
     for k in range(3):
-        r = _bil(c, k, y0, x0, y1, x1, nw, ne, sw, se)
+        r = _bil_pair(c, mad32(I32(k), hw32, p), rs, xi, nw, ne, sw, se)
         s[k, oy, x] = sval_b(c[k, y, x]) if zero else r
-    sd[oy, x] = _nearest_depth(d, fx, fy, xf, yf, wm1, hm1)
+    sd[oy, x] = _nearest_depth32(d, fx, fy, xf, yf, wm1, hm1, w)
 
 
 @njit(**KERNEL)
 def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0, v0):
     """Mob-FGSR warp stage (3-channel colour): colour (bilinear) and depth (nearest) of
-    frame 1 along to1 and, when ``two``, of frame 0 along to0, row by row."""
+    frame 1 along to1 and, when ``two``, of frame 0 along to0, row by row. C-contiguous
+    colour and depth, flat_ok(h, w, 3)."""
     h, w = d1.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
     for py in prange(h):
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
         yf = F32(y)
@@ -110,11 +173,11 @@ def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0
         hi_y = F32(h - 0.5) - yf
         for x in range(w):
             _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
-                     kx, ky, hw, hh, wm1, hm1, w, h)
+                     kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         if two:
             for x in range(w):
                 _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
-                         gyy, kx, ky, hw, hh, wm1, hm1, w, h)
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
 
 
 @njit(**KERNEL)
