@@ -23,17 +23,16 @@ from numba import njit, prange
 from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
-from fgcli.kernels.warp import _bil, _coords, _nearest_depth
+from fgcli.kernels._intrin import ld_pair, mad32
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth
 
 
 @njit(**INLINE)
-def _tap(d, xi, yi, wt, zt, thr, w, h, wm1, hm1):
-    """One bilinear tap of _tap_mask: its weight when on-screen and the same surface as zt
-    (or farther), else 0 (added to the running sum as the reference's ``wt * (on & ok)``)."""
+def _tap(z, xi, yi, wt, zt, thr, wm1, hm1):
+    """One bilinear tap of _tap_mask with the depth z there (sanitised): its weight when
+    on-screen and the same surface as zt (or farther), else 0 (added to the running sum as
+    the reference's ``wt * (on & ok)``)."""
     on = (xi >= F32(0.0)) & (xi <= wm1) & (yi >= F32(0.0)) & (yi <= hm1)
-    ix = np.int64(clamp_b(xi, F32(0.0), wm1))
-    iy = np.int64(clamp_b(yi, F32(0.0), hm1))
-    z = sdepth_b(d[iy, ix])
     diff = abs(z - zt)
     mn = z if z < zt else zt
     ok = (z == zt) | (mn * thr >= diff) | (z > zt)
@@ -41,8 +40,21 @@ def _tap(d, xi, yi, wt, zt, thr, w, h, wm1, hm1):
 
 
 @njit(**INLINE)
+def _row_pair(d, yi, px, x0, w, wm1, hm1):
+    """The sanitised depths at the reference's clamped taps (clamp(x0), clamp(x0 + 1)) of
+    row clamp(yi), from one pair load at column px = clamp(x0, 0, w - 2): x0 <= 0 gives
+    px = 0, x0 >= w - 1 gives px + 1 = w - 1 for the clamped x0 (needs w >= 2)."""
+    iy = I32(clamp_b(yi, F32(0.0), hm1))
+    a, b = ld_pair(d, mad32(iy, w, px))
+    z0 = b if x0 >= wm1 else a
+    z1 = a if x0 + F32(1.0) <= F32(0.0) else b
+    return sdepth_b(z0), sdepth_b(z1)
+
+
+@njit(**INLINE)
 def _tap_mask(d, x, y, zt, thr, w, h, wm1, hm1):
-    """fgcli.ops.fsr3._tap_mask at one position (x, y) (index coordinates)."""
+    """fgcli.ops.fsr3._tap_mask at one position (x, y) (index coordinates); w, h int32,
+    d C-contiguous with flat_ok(h, w, 1)."""
     x = clamp_b(x, F32(-2.0), F32(w + 1.0))
     y = clamp_b(y, F32(-2.0), F32(h + 1.0))
     x0 = np.floor(x)
@@ -53,11 +65,14 @@ def _tap_mask(d, x, y, zt, thr, w, h, wm1, hm1):
     ey = F32(1.0) - fy
     x1 = x0 + F32(1.0)
     y1 = y0 + F32(1.0)
+    px = I32(clamp_b(x0, F32(0.0), wm1 - F32(1.0)))
+    z00, z10 = _row_pair(d, y0, px, x0, w, wm1, hm1)
+    z01, z11 = _row_pair(d, y1, px, x0, w, wm1, hm1)
     acc = F32(0.0)
-    acc += _tap(d, x0, y0, ex * ey, zt, thr, w, h, wm1, hm1)
-    acc += _tap(d, x1, y0, fx * ey, zt, thr, w, h, wm1, hm1)
-    acc += _tap(d, x0, y1, ex * fy, zt, thr, w, h, wm1, hm1)
-    acc += _tap(d, x1, y1, fx * fy, zt, thr, w, h, wm1, hm1)
+    acc += _tap(z00, x0, y0, ex * ey, zt, thr, wm1, hm1)
+    acc += _tap(z10, x1, y0, fx * ey, zt, thr, wm1, hm1)
+    acc += _tap(z01, x0, y1, ex * fy, zt, thr, wm1, hm1)
+    acc += _tap(z11, x1, y1, fx * fy, zt, thr, wm1, hm1)
     return acc
 
 
@@ -65,10 +80,13 @@ def _tap_mask(d, x, y, zt, thr, w, h, wm1, hm1):
 def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc):
     """Both masks: toward the previous frame the taps of depth_prev at ``q + a v``, toward
     the current frame those of depth1 at ``q - b v`` (a = alpha, b = 1 - alpha as float32);
-    1.0 where the agreeing weight reaches ``threshold``, else 0.0."""
+    1.0 where the agreeing weight reaches ``threshold``, else 0.0. C-contiguous depths,
+    flat_ok(h, w, 1)."""
     h, w = depth_t.shape
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
     for py in prange(h):
         y = np.int64(py)
         yf = F32(y)
@@ -76,27 +94,29 @@ def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, 
             vx = smv_b(vec[0, y, x])
             vy = smv_b(vec[1, y, x])
             zt = sdepth_b(depth_t[y, x])
-            acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w, h, wm1, hm1)
+            acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32, wm1,
+                            hm1)
             mp[y, x] = F32(acc >= threshold)
         for x in range(w):
             vx = smv_b(vec[0, y, x])
             vy = smv_b(vec[1, y, x])
             zt = sdepth_b(depth_t[y, x])
-            acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w, h, wm1, hm1)
+            acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1, hm1)
             mc[y, x] = F32(acc >= threshold)
 
 
 @njit(**INLINE)
-def _sample(c, rx, ry, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, out,
-            ox):
+def _sample(c, rx, ry, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h,
+            hw32, out, ox):
     """backward_warp(c, flow)[:, y, x] (bilinear, border clamp; zero flow exact) into
     out[:, ox]; returns inside_mask of the flow (rx, ry are finite: sanitised vectors times
-    a float32 scalar)."""
+    a float32 scalar). w, h, hw32 = h * w: int32 (the taps are pair loads,
+    fgcli.kernels.warp._bil_pair)."""
     valid = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
     zero = (rx == F32(0.0)) & (ry == F32(0.0))
-    y0, x0, y1, x1, nw, ne, sw, se = _coords(rx, ry, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
+    p, rs, xi, nw, ne, sw, se = _flat_coords(rx, ry, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
     for k in range(3):
-        r = _bil(c, k, y0, x0, y1, x1, nw, ne, sw, se)
+        r = _bil_pair(c, mad32(I32(k), hw32, p), rs, xi, nw, ne, sw, se)
         out[k, ox] = sval_b(c[k, y, x]) if zero else r
     return valid
 
@@ -137,6 +157,9 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for py in prange(h):
@@ -151,12 +174,12 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
         in1 = np.empty(w, dtype=np.float32)
         for x in range(w):
             in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y,
-                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w,
-                                 h, P, x))
+                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32,
+                                 h32, hw32, P, x))
         for x in range(w):
             in1[x] = F32(_sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y,
-                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w,
-                                 h, C, x))
+                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32,
+                                 h32, hw32, C, x))
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
             my = mask_cur[y, x] * in1[x]
@@ -183,6 +206,9 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for py in prange(h):
@@ -195,10 +221,12 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
         Co = np.empty((3, w), dtype=np.float32)
         for x in range(w):
             _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y, F32(x),
-                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w, h, Po, x)
+                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, Po,
+                    x)
         for x in range(w):
             _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w, h, Co, x)
+                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                    hw32, Co, x)
         for x in range(w):
             s_of = _similarity(Po, Co, x, eps, eps2)
             b = S[y, x] / (eps if s_of < eps else s_of)

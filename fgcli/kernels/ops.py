@@ -359,8 +359,12 @@ def disocclusion_masks(depth_t, depth_prev, depth1, vec, alpha=0.5, kfov=1.4, ks
     depth_t, depth_prev, depth1, vec, a, thr = FS.disocclusion_args(
         depth_t, depth_prev, depth1, vec, alpha, kfov, ksep)
     from fgcli.kernels.fsr3 import disocclusion_kernel
+    from fgcli.kernels.warp import flat_ok
 
     h, w = depth_t.shape[-2:]
+    if not flat_ok(h, w, 1):
+        return FS.disocclusion_masks(depth_t, depth_prev, depth1, vec, alpha, kfov, ksep,
+                                     threshold)
     mp, mc = _empty(1, h, w), _empty(1, h, w)
     disocclusion_kernel(_a(depth_t)[0], _a(depth_prev)[0], _a(depth1)[0], _a(vec), F32(a),
                         F32(1.0 - a), F32(thr), F32(threshold), mp.numpy()[0], mc.numpy()[0])
@@ -378,11 +382,13 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
         return FS.interpolate_fsr3(*args)
     color0, color1, vec, of_vec, a = FS.interpolate_args(color0, color1, vec, alpha, of_vec,
                                                          space)
+    from fgcli.kernels.fsr3 import interp_flow_kernel, interp_game_kernel
+    from fgcli.kernels.warp import flat_ok
+
     c, h, w = color0.shape
     if c != 3 or any(m.shape != (1, h, w) or m.dtype != torch.float32
-                     for m in (mask_prev, mask_cur)):
+                     for m in (mask_prev, mask_cur)) or not flat_ok(h, w, 3):
         return FS.interpolate_fsr3(*args)
-    from fgcli.kernels.fsr3 import interp_flow_kernel, interp_game_kernel
 
     gxn, gyn, kx, ky = _grid(h, w)
     out, holes, bias = _empty(3, h, w), _empty(1, h, w, dtype=torch.bool), _empty(1, h, w)
