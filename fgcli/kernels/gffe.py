@@ -17,8 +17,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
-from fgcli.kernels._intrin import atomic_min_i64
-from fgcli.kernels.warp import _bil, _coords
+from fgcli.kernels._intrin import atomic_min_i64, mad32
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
 ZERO = np.float32(0.0)
@@ -43,17 +43,18 @@ SPAN = 64  # sample_where_kernel's unit of skipping
 
 
 @njit(**INLINE)
-def _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w, h, out,
-               x, y):
-    """sample_where_kernel's colour at pixel (x, y), selects only."""
+def _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w, h,
+               hw32, out, x, y):
+    """sample_where_kernel's colour at pixel (x, y), selects only; w, h, hw32 = h * w int32
+    (the taps are fgcli.kernels.warp's pair loads)."""
     s = sel[y, x] != U0
     fx = sflow_b(flow[0, y, x])
     fy = sflow_b(flow[1, y, x])
     zero = (fx == ZERO) & (fy == ZERO)
-    y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
+    p, rs, xi, nw, ne, sw, se = _flat_coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
                                              w, h)
     for k in range(3):
-        r = _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se)
+        r = _bil_pair(img, mad32(I32(k), hw32, p), rs, xi, nw, ne, sw, se)
         r = sval_b(img[k, y, x]) if zero else r
         b = base[k, y, x] if has_base else ZERO
         out[k, y, x] = r if s else b
@@ -75,6 +76,9 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
     for py in prange(h):
         y = np.int64(py)
         gyy = gyn[y]
@@ -100,7 +104,7 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
             else:
                 for i in range(n):
                     _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1,
-                               hm1, w, h, out, xa + i, y)
+                               hm1, w32, h32, hw32, out, xa + i, y)
 
 
 # ----------------------------------------------------------------------------- warp

@@ -1193,8 +1193,20 @@ def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place
     where(sel, flow, fbase or 0) or None without flow_out) for a 3-channel img, by one
     kernel. in_place: base is the caller's own scratch; it becomes the first result."""
     from fgcli.kernels.gffe import sample_where_kernel
+    from fgcli.kernels.warp import flat_ok
 
     h, w = sel.shape[-2:]
+    if not flat_ok(h, w, 3):  # (one column, or past 32-bit indices) the torch ops
+        from fgcli.ops.warp import backward_warp
+
+        smp, _ = backward_warp(R.sanitize_values(img), flow, "bilinear")
+        out = torch.where(sel, smp, torch.zeros_like(smp) if base is None else base)
+        if in_place and base is not None:
+            out = base.copy_(out)
+        fout = None
+        if flow_out:
+            fout = torch.where(sel, flow, torch.zeros_like(flow) if fbase is None else fbase)
+        return out, fout
     gxn, gyn, kx, ky = _grid(h, w)
     inp = in_place and base is not None
     out = base if inp else _empty(3, h, w)
