@@ -62,7 +62,7 @@ def dilate_nearest_depth(depth, mv, radius: int = 1):
 
     h, w = depth.shape[-2:]
     d, m = _empty(1, h, w), _empty(2, h, w)
-    if radius == 1:  # the default (3x3): the tap-by-tap kernel
+    if radius == 1 and 2 * h * w < 2 ** 31:  # the default (3x3): the tap-by-tap kernel
         dilate3_kernel(_a(depth)[0], _a(mv), d.numpy()[0], m.numpy())
     else:
         dilate_kernel(_a(depth)[0], _a(mv), radius, d.numpy()[0], m.numpy())
@@ -79,7 +79,8 @@ def splat_motion(depth1, mv1, mv0, alpha, model="quadratic", mode="interp", dept
     h, w = depth1.shape[-2:]
     if (h + 2) * (w + 2) >= 2 ** 31:
         raise ValueError("splat_motion: image too large for 32-bit source indices")
-    if h >= 65536 or w >= 65536:  # the kernel packs sources as y << 16 | x
+    if h >= 65536 or w >= 65536 or 2 * h * w >= 2 ** 31:
+        # (the kernel packs sources as y << 16 | x, and indexes the vectors in 32 bits)
         return R.splat_motion(depth1, mv1, mv0, alpha, model, mode, depth0, depth0_tol_rel,
                               toward0)
     from fgcli.kernels.splat import splat_kernel, splat_resolve_kernel

@@ -11,7 +11,9 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clamp_b,
                                    sdepth_b, smv_b)
-from fgcli.kernels._intrin import atomic_min_i64, fma
+from fgcli.kernels._intrin import atomic_min_i64, fma, ld32, mad32
+
+I32 = np.int32
 
 
 @njit(**KERNEL)
@@ -86,8 +88,11 @@ def dilate3_kernel(depth, mv, dout, mvout):
     """dilate_kernel for r = 1, one pass per row: the window minimum taken tap by tap over
     a rolling buffer of three sanitised, +inf-padded depth rows (nine selects per pixel,
     the winner as a code 0..8; no index arrays), then the centre keeps ties and the vector
-    is gathered at the winner. Same result as the separable kernel (and the reference)."""
+    is gathered at the winner (32-bit indexed loads: C-contiguous mv, 2 H W < 2**31). Same
+    result as the separable kernel (and the reference)."""
     h, w = depth.shape
+    w32 = I32(w)
+    hw32 = I32(h * w)
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
@@ -128,11 +133,10 @@ def dilate3_kernel(depth, mv, dout, mvout):
             for x in range(w):
                 k = np.int64(code[x])
                 q = (k * 11) >> 5  # k // 3 for k in 0..8, without a division
-                sy = y + q - 1
-                sx = x + (k - 3 * q) - 1
+                i = mad32(y + q - 1, w32, x + (k - 3 * q) - 1)  # the winner, flat
                 dout[y, x] = best[x]
-                mvout[0, y, x] = smv_b(mv[0, sy, sx])
-                mvout[1, y, x] = smv_b(mv[1, sy, sx])
+                mvout[0, y, x] = smv_b(ld32(mv, i))
+                mvout[1, y, x] = smv_b(ld32(mv, mad32(hw32, I32(1), i)))
 
 
 @njit(**INLINE)
@@ -166,23 +170,26 @@ def _target(dx, dy, xf, yf, w, h):
 
 
 @njit(**INLINE)
-def _resolve_px(k, x, y, quad, w0, depth1, mv1, disp, ca, w, to1, to0, dout, valid, source):
+def _resolve_px(k, x, y, quad, w0, depth1, mv1, disp, ca, w, hw, to1, to0, dout, valid,
+                source):
     """Target pixel (x, y) from its winning key k (I64_MAX: a hole); quadratic: the
-    source's displacement as the scatter stored it in disp; w0: write to0 too (quad and
-    w0 are literals at every call, so each loop is compiled without the other case)."""
+    source's displacement as the scatter stored it in disp; w0: write to0 too
+    (quad and w0 are literals at every call, so each loop is compiled without the other
+    case). The source's values are 32-bit indexed loads (w, hw = h * w: int32)."""
     ok = k != I64_MAX
     lo = k & 0xFFFFFFFF
     sy = (lo >> 16) if ok else y
     sx = (lo & 0xFFFF) if ok else np.int64(x)
-    ax = smv_b(mv1[0, sy, sx])
-    ay = smv_b(mv1[1, sy, sx])
+    i = mad32(sy, w, sx)
+    ax = smv_b(ld32(mv1, i))
+    ay = smv_b(ld32(mv1, mad32(hw, I32(1), i)))
     if quad:
-        dx = disp[0, sy, sx]
-        dy = disp[1, sy, sx]
+        dx = ld32(disp, i)
+        dy = ld32(disp, mad32(hw, I32(1), i))
     else:
         dx = ax * ca
         dy = ay * ca
-    source[y, x] = np.int32(sy * w + sx) if ok else np.int32(-1)
+    source[y, x] = i if ok else I32(-1)
     valid[y, x] = ok
     dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
     to1[0, y, x] = -dx if ok else F32(0.0)
@@ -196,8 +203,9 @@ def _resolve_px(k, x, y, quad, w0, depth1, mv1, disp, ca, w, to1, to0, dout, val
 def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp):
     """Scatter: the minimum of packed keys ``depth bits << 32 | y << 16 | x`` into buf,
     (H+2)*(W+2) with an off-screen ring (the (y, x) packing orders like the flat index);
-    quadratic: every source's displacement into disp. splat_resolve_kernel then reads the
-    winners. Widths and heights are below 65536 (the wrapper checks).
+    quadratic: every source's displacement into disp (2, H, W; stored as pairs, (H, W, 2),
+    the loop was not vectorised: 8 -> 18 ms). splat_resolve_kernel then reads the winners.
+    Widths and heights are below 65536 and 2 H W < 2**31 (the wrapper checks).
 
     Scatter without atomics where no other thread can write: the source rows are cut into
     bands, even bands run in parallel, then odd ones; a source whose target row lies within
@@ -275,22 +283,24 @@ def splat_resolve_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, v
     gathers in the assembly; 10-11 ms at 1080p against 6-7 ms here)."""
     h, w = depth1.shape
     w2 = w + 2
+    w32 = I32(w)
+    hw32 = I32(h * w)
     for py in prange(h):
         y = np.int64(py)
         r = (y + 1) * w2 + 1
         if quad and w0:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, True, True, depth1, mv1, disp, ca, w, to1, to0,
-                            dout, valid, source)
+                _resolve_px(buf[r + x], x, y, True, True, depth1, mv1, disp, ca, w32, hw32,
+                            to1, to0, dout, valid, source)
         elif quad:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, True, False, depth1, mv1, disp, ca, w, to1, to0,
-                            dout, valid, source)
+                _resolve_px(buf[r + x], x, y, True, False, depth1, mv1, disp, ca, w32, hw32,
+                            to1, to0, dout, valid, source)
         elif w0:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, False, True, depth1, mv1, disp, ca, w, to1, to0,
-                            dout, valid, source)
+                _resolve_px(buf[r + x], x, y, False, True, depth1, mv1, disp, ca, w32, hw32,
+                            to1, to0, dout, valid, source)
         else:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, False, False, depth1, mv1, disp, ca, w, to1, to0,
-                            dout, valid, source)
+                _resolve_px(buf[r + x], x, y, False, False, depth1, mv1, disp, ca, w32, hw32,
+                            to1, to0, dout, valid, source)
