@@ -146,12 +146,13 @@ def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w
     depth check, when frame 0's depth there agrees), else b = a. Selects only."""
     use = (ax >= F32(-0.5) - xf) & (ax < F32(w - 0.5) - xf) & \
           (ay >= F32(-0.5) - yf) & (ay < F32(h - 0.5) - yf)
-    ix = np.int64(clamp_b(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
-    iy = np.int64(clamp_b(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
-    bx = smv_b(mv0[0, iy, ix])
-    by = smv_b(mv0[1, iy, ix])
+    ix = I32(clamp_b(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
+    iy = I32(clamp_b(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
+    i = mad32(iy, I32(w), ix)  # 32-bit indexed loads (16-lane gathers)
+    bx = smv_b(ld32(mv0, i))
+    by = smv_b(ld32(mv0, mad32(I32(w), I32(h), i)))
     # depth0 is depth1 itself when the check is off (a safe read; the result is unused)
-    d0s = sdepth_b(depth0[iy, ix])
+    d0s = sdepth_b(ld32(depth0, i))
     d1s = sdepth_b(depth1[y, x])
     same = (d0s == d1s) | (abs(d0s - d1s) <= min(d0s, d1s) * tol)
     use = use & (same | (not use_d0))
