@@ -12,8 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
-from fgcli.kernels._intrin import fma
-from fgcli.kernels.warp import _coords
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 _PRIMARY = np.int64(1) << np.int64(31)
 
@@ -299,7 +298,8 @@ def luma_plane_kernel(c, out):
 @njit(**KERNEL)
 def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
-    so a tap is one gather, not three): frame 0's luminance read bilinearly at
+    so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps are pair
+    loads): frame 0's luminance read bilinearly at
     p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
     luminance at p, the packed primary entries of both components (keys (2, H, W) int64)
     and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
@@ -311,6 +311,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
     for py in prange(h):
         y = np.int64(py)
         yf = F32(y)
@@ -326,9 +328,10 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
             ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
                          & (vy < hi_y))
             zero = (vx == F32(0.0)) & (vy == F32(0.0))
-            y0, x0, y1, x1, nw, ne, sw, se = _coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
-                                                     hm1, w, h)
-            r = fma(l0[y1, x1], se, fma(l0[y1, x0], sw, fma(l0[y0, x1], ne, l0[y0, x0] * nw)))
+            # (pair loads: l0 is sanitised, so _bil_pair's sanitising changes nothing)
+            p, rs, xi, nw, ne, sw, se = _flat_coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                                     hm1, w32, h32)
+            r = _bil_pair(l0, p, rs, xi, nw, ne, sw, se)
             s0[x] = l0[y, x] if zero else r
         for x in range(w):
             vx = smv_b(vec[0, y, x])

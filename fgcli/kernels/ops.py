@@ -815,7 +815,10 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False):
     1e-6)), else None. Other inputs: the reference's own function."""
     from fgcli.ops import fsr3 as FS
 
-    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel():
+    from fgcli.kernels.warp import flat_ok
+
+    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
+            not flat_ok(*vec.shape[-2:], 1):
         vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
         walk = None
         if sec and vf.shape[1]:
