@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
-from fgcli.kernels._intrin import atomic_min_i64, mad32
+from fgcli.kernels._intrin import atomic_min_i64, ld32, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
@@ -902,10 +902,12 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
     nprev), else P'_0; pf (the fallback's point) where fb; each where the pixel is used
     (use, P'_0 a surface as p) and the sample is of p's kind, else p. dyn = the used
     pixels. (Without a fallback, fb is zero; unused inputs are same-shape stand-ins.)
-    One row loop per plane group and source (a single kind of read in each)."""
+    One row loop per plane group and source (a single kind of read in each). prev is
+    read at the flat index idx through 32-bit indexed loads (C-contiguous, fewer than
+    2**31 elements)."""
     k = out.shape[0]
     h, w = use.shape
-    pvf = prev.reshape((prev.shape[0], 4, prev.shape[2] * prev.shape[3]))  # (flat: idx)
+    hw = I32(prev.shape[2] * prev.shape[3])
     for pr in prange(h):
         y = np.int64(pr)
         ub = np.empty(w, dtype=np.float32)
@@ -914,14 +916,14 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
                 out[0, c, y, x] = p[c, y, x]
         if from_prev:
             for x in range(w):
-                n = idx[y, x]
+                n = I32(idx[y, x])
                 f = fb[y, x] != U0
                 p3 = p[3, y, x]
-                q3 = pf[3, y, x] if f else pvf[0, 3, n]
+                q3 = pf[3, y, x] if f else ld32(prev, mad32(I32(3), hw, n))
                 u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
                 ub[x] = ONE if u else ZERO
                 for c in range(4):
-                    q = pf[c, y, x] if f else pvf[0, c, n]
+                    q = pf[c, y, x] if f else ld32(prev, mad32(I32(c), hw, n))
                     out[1, c, y, x] = q if u else p[c, y, x]
         else:
             for x in range(w):
@@ -938,12 +940,12 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
         for i in range(2, k):
             if i - 1 < nprev:
                 for x in range(w):
-                    n = idx[y, x]
+                    n = I32(idx[y, x])
                     f = fb[y, x] != U0
-                    q3 = pf[3, y, x] if f else pvf[i - 1, 3, n]
+                    q3 = pf[3, y, x] if f else ld32(prev, mad32(I32(4 * i - 1), hw, n))
                     t = (ub[x] != ZERO) & (q3 == p[3, y, x])
                     for c in range(4):
-                        q = pf[c, y, x] if f else pvf[i - 1, c, n]
+                        q = pf[c, y, x] if f else ld32(prev, mad32(I32(4 * i - 4 + c), hw, n))
                         out[i, c, y, x] = q if t else p[c, y, x]
             else:  # P'_0 again (its kind is p's wherever the pixel is used)
                 for x in range(w):

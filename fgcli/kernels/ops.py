@@ -1130,7 +1130,8 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
           and lookup in ("match", "nearest")
           and (depth0 is None or (_f32cpu(depth0) and depth0.shape == depth1.shape))
           and (prev is None or (_f32cpu(prev, 4) and prev.shape[0] >= 1
-                                and tuple(prev.shape[1:]) == (4, h, w))))
+                                and tuple(prev.shape[1:]) == (4, h, w)))
+          and 4 * (prev.shape[0] if prev is not None else 1) * h * w < 2 ** 31)
     if not ok:
         return G.track_history(depth1, mv1, cam1, cam0, depth0, prev, k, threshold,
                                first_frame, lookup, match_tol, geom=GEOM)
