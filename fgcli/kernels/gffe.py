@@ -180,21 +180,21 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
     wf = F32(w)
     i2 = 2 if quad else 1  # (k = 2: a plane that exists, unused)
     two = F32(2.0)
-    # the winner's flat index n reads flat views: the element [n // w, n % w], no division
-    tf = traj.reshape((traj.shape[0], 4, h * w))
-    df = dyn.reshape(h * w)
+    # the winner's flat index n: the element [n // w, n % w] with no division, through
+    # 32-bit indexed loads (C-contiguous traj and dyn, 4 k h w < 2**31)
+    hw = I32(h * w)
     for pr in prange(h):
         y = np.int64(pr)
-        nidx = np.empty(w, dtype=np.int64)
+        nidx = np.empty(w, dtype=np.int32)
         both = np.empty(w, dtype=np.float32)
         for x in range(w):
             fi = clamp_b(np.floor(src[1, y, x]), ZERO, hm1) * wf + \
                 clamp_b(np.floor(src[0, y, x]), ZERO, wm1)
-            n = np.int64(fi)
+            n = I32(fi)
             nidx[x] = n
-            t3 = tf[0, 3, n]
+            t3 = ld32(traj, mad32(I32(3), hw, n))
             b = (t3 > ZERO) & (traj[0, 3, y, x] > ZERO)
-            dn = (df[n] != U0) | (not has_dyn)
+            dn = (ld32(dyn, n) != U0) | (not has_dyn)
             dx = (dyn[y, x] != U0) & has_dyn
             b = b & dn & (not dx)
             both[x] = ONE if b else ZERO
@@ -204,17 +204,22 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
         for x in range(w):
             n = nidx[x]
             b = both[x] != ZERO
-            t03 = tf[0, 3, n]
-            ok1 = b & (tf[1, 3, n] == t03)
-            ok2 = b & (tf[i2, 3, n] == t03)
+            t03 = ld32(traj, mad32(I32(3), hw, n))
+            t13 = ld32(traj, mad32(I32(7), hw, n))
+            t23 = ld32(traj, mad32(I32(4 * i2 + 3), hw, n))
+            ok1 = b & (t13 == t03)
+            ok2 = b & (t23 == t03)
             p03 = out[3, y, x]
-            q13 = (p03 - (t03 - tf[1, 3, n])) if ok1 else traj[1, 3, y, x]
-            q23 = (p03 - (t03 - tf[i2, 3, n])) if ok2 else traj[i2, 3, y, x]
+            q13 = (p03 - (t03 - t13)) if ok1 else traj[1, 3, y, x]
+            q23 = (p03 - (t03 - t23)) if ok2 else traj[i2, 3, y, x]
             same = (q13 == p03) & ((q23 == p03) | (not quad))
             for c in range(3):
                 p0c = out[c, y, x]
-                q1 = (p0c - (tf[0, c, n] - tf[1, c, n])) if ok1 else traj[1, c, y, x]
-                q2 = (p0c - (tf[0, c, n] - tf[i2, c, n])) if ok2 else traj[i2, c, y, x]
+                t0c = ld32(traj, mad32(I32(c), hw, n))
+                q1 = (p0c - (t0c - ld32(traj, mad32(I32(4 + c), hw, n)))) if ok1 else \
+                    traj[1, c, y, x]
+                q2 = (p0c - (t0c - ld32(traj, mad32(I32(4 * i2 + c), hw, n)))) if ok2 else \
+                    traj[i2, c, y, x]
                 r = p0c + a * (p0c - q1)
                 rq = r + cq * ((p0c - two * q1) + q2)
                 r = rq if quad else r

@@ -1273,7 +1273,7 @@ def dilated_positions(traj, depth1, cam1, dynamic, alpha, motion="linear", geom=
     ok = _f32cpu(traj, 4) and traj.shape[1] == 4 and traj.shape[0] >= 2 and \
         _f32cpu(depth1) and depth1.shape == (1,) + tuple(traj.shape[-2:]) and \
         (dynamic is None or _boolcpu(dynamic, depth1.shape)) and \
-        motion in ("linear", "quadratic")
+        motion in ("linear", "quadratic") and traj.numel() < 2 ** 31
     if ok:
         try:
             a = check_alpha(alpha, hi=None)
