@@ -709,6 +709,16 @@ def test_unpack_vector_field():
     same_result("unpack", k, r)
     assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
 
+    # vector_field's result: the interior view of its padded buffers, read in place
+    # (the ring holds other values: a read of it would show)
+    padded = torch.full((2, 258, 258), (7 << 16) | 0x3C00, dtype=torch.int64)
+    padded[:, 1:257, 1:257] = f
+    view = padded[:, 1:257, 1:257]
+    assert K._padded_base(view)[1] == 1 and K._padded_base(f)[1] == 0
+    k = K.unpack_vector_field(view)
+    same_result("unpack in place", k, r)
+    assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
+
 
 @pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 5), (5, 1), (1, 1), (3, 3)])
 def test_pyramid_level_and_fills(h, w):

@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
+from fgcli.kernels._intrin import ld32, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 _PRIMARY = np.int64(1) << np.int64(31)
@@ -401,18 +402,25 @@ def half_value(b):
 
 
 @njit(**KERNEL)
-def unpack_kernel(field, vec, prio, valid):
+def unpack_kernel(field, o, vec, prio, valid):
     """fgcli.ops.fsr3.unpack_vector_field: field (2, H, W) int64 -> vec (2, H, W) float32
     (times valid, as the reference's product: -0.0 for a negative unwritten component),
-    prio (H, W) int64 (16 bits of the y entry), valid (H, W) bool."""
+    prio (H, W) int64 (16 bits of the y entry), valid (H, W) bool. With o = 1 the field is
+    the scatter's padded buffer (2, H + 2, W + 2), read inside its ring."""
     h, w = prio.shape
+    w2 = I32(w + 2 * o)
+    plane = I32((h + 2 * o) * (w + 2 * o))
     for py in prange(h):
         y = np.int64(py)
+        r = mad32(y + o, w2, I32(o))  # (32-bit, unwrapped indices: contiguous loads)
         for x in range(w):
-            p = (field[1, y, x] >> 16) & 0xFFFF
+            i = mad32(I32(x), I32(1), r)
+            f0 = ld32(field, i)
+            f1 = ld32(field, mad32(plane, I32(1), i))
+            p = (f1 >> 16) & 0xFFFF
             ok = p > 0
             prio[y, x] = p
             valid[y, x] = ok
             m = F32(ok)
-            vec[0, y, x] = half_value(field[0, y, x] & 0xFFFF) * m
-            vec[1, y, x] = half_value(field[1, y, x] & 0xFFFF) * m
+            vec[0, y, x] = half_value(f0 & 0xFFFF) * m
+            vec[1, y, x] = half_value(f1 & 0xFFFF) * m

@@ -854,15 +854,31 @@ def unpack_vector_field(field):
     from fgcli.ops import fsr3 as FS
 
     if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2 or \
-            field.device.type != "cpu" or field.dtype != torch.int64:
+            field.device.type != "cpu" or field.dtype != torch.int64 or \
+            2 * (field.shape[1] + 2) * (field.shape[2] + 2) >= 2 ** 31:  # (32-bit indices)
         return FS.unpack_vector_field(field)
     from fgcli.kernels.field import unpack_kernel
 
     h, w = field.shape[-2:]
     vec, prio = _empty(2, h, w), _empty(1, h, w, dtype=torch.int64)
     valid = _empty(1, h, w, dtype=torch.bool)
-    unpack_kernel(_a(field), vec.numpy(), prio.numpy()[0], valid.numpy()[0])
+    src, o = _padded_base(field)
+    unpack_kernel(_a(field) if src is None else src, o, vec.numpy(), prio.numpy()[0],
+                  valid.numpy()[0])
     return vec, prio, valid
+
+
+def _padded_base(field):
+    """(buffer, 1) when field is the interior view of a padded (2, H + 2, W + 2) buffer
+    (vector_field's result: read in place, no contiguous copy), else (None, 0)."""
+    h, w = field.shape[-2:]
+    start = field.storage_offset() - (w + 3)
+    if field.is_contiguous() or start < 0 or \
+            field.stride() != ((h + 2) * (w + 2), w + 2, 1) or \
+            field.untyped_storage().nbytes() < (start + 2 * (h + 2) * (w + 2)) * 8:
+        return None, 0
+    b = field.as_strided((2, h + 2, w + 2), ((h + 2) * (w + 2), w + 2, 1), start)
+    return b.numpy(), 1
 
 
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
@@ -880,7 +896,8 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     walk_on = secondary and max_secondary > 0
     pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on)
     n = (h + 2) * (w + 2)
-    buf = [np.empty(n, dtype=np.int64) for _ in range(2)]  # (zeroed by the kernel)
+    padded = np.empty((2, h + 2, w + 2), dtype=np.int64)  # (zeroed by the kernel)
+    buf = [padded[0].reshape(-1), padded[1].reshape(-1)]
     steps = 0
     dist = d = np.zeros((2, 1), dtype=np.float32)
     if walk is not None:
@@ -895,8 +912,9 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
         sec = [np.empty(n, dtype=np.int64) for _ in range(2)]  # (zeroed by the kernel)
         field_walk_kernel(pa, k0, k1, dist.reshape(-1), d, h, w, steps, buf[0], buf[1], *sec)
         field_merge_kernel(buf[0], buf[1], *sec)
-    out = torch.stack([FS._crop(torch.from_numpy(b), h, w)[0] for b in buf])
-    return out
+    # the interior of the padded buffers, as a view (unpack_vector_field reads it in place;
+    # the stacked copy cost 1.4 ms per 1080p field)
+    return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
 
 
 def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
