@@ -455,8 +455,15 @@ def test_block_flow(h, w, levels, block, search, median):
     # stripes of period 2 shifted by one: offsets -1 and +1 give the same SAD at the same
     # distance, so the tie rule (first offset in (dy, dx) order) decides
     stripes = (torch.arange(w) % 2 * 255.0).expand(1, h, w).contiguous()
+    # raw values: fractions (.5 rounds to even), out of range, NaN, +-inf (the levels'
+    # sanitising and rounding, and the pyramid's averages of odd sums)
+    raw = base[:, 10:10 + h, 10:10 + w] * 1.3 - 20.0
+    raw.view(-1)[::7] = torch.arange(raw.view(-1)[::7].numel()) * 0.5 % 256
+    raw.view(-1)[3::11] = NAN
+    raw.view(-1)[5::13] = INF
+    raw.view(-1)[6::17] = -INF
     for a, b in ((l0, l1.round()), (l0, l0), (torch.zeros_like(l0), torch.full_like(l0, 255.0)),
-                 (stripes, stripes.roll(1, -1))):
+                 (stripes, stripes.roll(1, -1)), (raw, l1), (l1, raw)):
         ref = fsr3.block_flow(a, b, levels, block, search, median)
         assert torch.equal(K.block_flow(a, b, levels, block, search, median), ref)
     # the sub-pixel option runs the reference's refinement after the kernel's search

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, KERNEL
+from fgcli.kernels._common import F32, INLINE, KERNEL
 from fgcli.kernels._intrin import sad16_rows
 from fgcli.kernels.field import _lum
 
@@ -216,6 +216,64 @@ def vector_median3_kernel(f, out):
                     best = i
             out[0, y, x] = vx[best]
             out[1, y, x] = vy[best]
+
+
+# ----------------------------------------------------------------------------- pyramid
+# block_flow's luminance pyramid as bytes: the reference's levels are whole numbers 0..255
+# held in float32 (round(clamp(nan_to_num(l), 0, 255)), then round(avg_pool2(level))), so
+# uint8 holds them exactly and the searches take them without conversions.
+
+
+@njit(**KERNEL)
+def luma_u8_kernel(lum, out):
+    """out (H, W) uint8 = round(clamp(nan_to_num(lum, nan=0), 0, 255)) (round half to
+    even, as torch.round; +inf -> 255, -inf -> 0)."""
+    h, w = out.shape
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            v = lum[y, x]
+            v = F32(0.0) if v != v else v
+            v = F32(0.0) if v < F32(0.0) else v
+            v = F32(255.0) if v > F32(255.0) else v
+            out[y, x] = np.uint8(np.rint(v))
+
+
+@njit(**INLINE)
+def _round_mean(s, c):
+    """round(s / c) half to even, for whole s >= 0 and c in 1, 2, 4 (s / c exact in
+    float32: the reference's division and torch.round)."""
+    q = s // c
+    r2 = 2 * (s - q * c)
+    q = q + 1 if r2 > c else q
+    return q + (q & 1) if r2 == c else q
+
+
+@njit(**KERNEL)
+def pool2_u8_kernel(src, dst):
+    """dst = round(avg_pool2d(src, 2, ceil_mode=True)) of a uint8 level (the children that
+    exist: the last row / column of an odd size averages what is there), exactly the
+    reference's float32 level."""
+    h, w = src.shape
+    h2, w2 = dst.shape
+    wf = w // 2
+    for poy in prange(h2):
+        oy = np.int64(poy)
+        y0 = 2 * oy
+        if y0 + 1 < h:
+            for ox in range(wf):
+                s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1]) + \
+                    np.int32(src[y0 + 1, 2 * ox]) + np.int32(src[y0 + 1, 2 * ox + 1])
+                dst[oy, ox] = np.uint8(_round_mean(s, np.int32(4)))
+            if wf < w2:
+                s = np.int32(src[y0, w - 1]) + np.int32(src[y0 + 1, w - 1])
+                dst[oy, wf] = np.uint8(_round_mean(s, np.int32(2)))
+        else:
+            for ox in range(wf):
+                s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1])
+                dst[oy, ox] = np.uint8(_round_mean(s, np.int32(2)))
+            if wf < w2:
+                dst[oy, wf] = src[y0, w - 1]
 
 
 # ----------------------------------------------------------------------------- luma8

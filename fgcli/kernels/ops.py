@@ -625,7 +625,8 @@ def _cache_cold(families=None) -> bool:
         from fgcli.kernels._intrin import HAVE_MPSADBW
 
         if HAVE_MPSADBW:  # (compiled only where it runs)
-            kernels += (flow.block_search_sad_kernel,)
+            kernels += (flow.block_search_sad_kernel, flow.luma_u8_kernel,
+                        flow.pool2_u8_kernel)
         kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
                     field.field_scatter_kernel, field.field_walk_kernel,
                     field.field_merge_kernel,
@@ -764,12 +765,59 @@ def _median3(f):
 
 
 def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=False):
+    from fgcli.kernels._intrin import HAVE_MPSADBW
     from fgcli.ops import fsr3 as FS
 
     if not _cpu(lum0, lum1) or block > 256:  # (the kernel's float32 SADs: exact below 2**24)
         return FS.block_flow(lum0, lum1, levels, block, search, median, subpixel)
+    if block == 8 and search == 8 and MPSADBW and HAVE_MPSADBW and not subpixel:
+        return _block_flow_u8(lum0, lum1, levels, median)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
                                subpixel, pool=avg_pool2, median3=_median3)
+
+
+def _block_flow_u8(lum0, lum1, levels, median):
+    """fgcli.ops.fsr3.block_flow_chain for FSR 3's sizes (8x8 blocks, offsets -8..7, no
+    sub-pixel step) with the pyramids as bytes (fgcli.kernels.flow.luma_u8_kernel,
+    pool2_u8_kernel: the reference's whole-number levels, exactly) searched by the mpsadbw
+    kernel: no float32 levels, no per-level conversions. The same vectors."""
+    from fgcli.kernels.flow import (block_search_sad_kernel, luma_u8_kernel, pool2_u8_kernel,
+                                    vector_median3_kernel)
+    from fgcli.ops import fsr3 as FS
+
+    lum0 = FS.check_tensor(lum0, "lum0", 1, allow_batch=False)
+    lum1 = FS.check_tensor(lum1, "lum1", 1, allow_batch=False)
+    FS.check_same(lum0, "lum0", (lum1, "lum1"))
+    pyr = []
+    for lum in (lum0, lum1):
+        lv = np.empty(lum.shape[-2:], dtype=np.uint8)
+        luma_u8_kernel(_a(lum)[0], lv)
+        pyr.append([lv])
+    p0, p1 = pyr
+    while len(p0) < levels and min(p0[-1].shape) >= 16:
+        for p in (p0, p1):
+            h, w = p[-1].shape
+            nxt = np.empty(((h + 1) // 2, (w + 1) // 2), dtype=np.uint8)
+            pool2_u8_kernel(p[-1], nxt)
+            p.append(nxt)
+    flow = None
+    for lv in range(len(p0) - 1, -1, -1):
+        h, w = p0[lv].shape
+        nby, nbx = -(-h // 8), -(-w // 8)
+        if flow is None:
+            pred = np.zeros((2, nby, nbx), dtype=np.int64)
+        else:  # the parent block's vector, twice (the last row / column replicated)
+            iy = np.minimum(np.arange(nby) // 2, flow.shape[1] - 1)
+            ix = np.minimum(np.arange(nbx) // 2, flow.shape[2] - 1)
+            pred = flow[:, iy[:, None], ix[None, :]].astype(np.int64) * 2
+        out = np.empty((2, nby, nbx), dtype=np.int64)
+        block_search_sad_kernel(p1[lv], p0[lv], pred, out)
+        flow = out.astype(np.float32)
+        if median:
+            med = np.empty_like(flow)
+            vector_median3_kernel(flow, med)
+            flow = med
+    return torch.from_numpy(flow)
 
 
 def luma8(color):
