@@ -472,26 +472,6 @@ def test_block_flow(h, w, levels, block, search, median):
                                     True), ref)
 
 
-@pytest.mark.parametrize("h,w,block", [(1080, 1920, 8), (37, 53, 8), (5, 3, 2), (1, 1, 8)])
-def test_upsample_block_flow(h, w, block):
-    """Each pixel takes its block's value (partial blocks at the edges), both dtypes the
-    fsr3 stage upsamples (the vectors, float32 with NaN / -0.0, and their int64
-    priorities), against the reference."""
-    from fgcli.ops import fsr3
-
-    g = torch.Generator().manual_seed(h + w)
-    nby, nbx = -(-h // block), -(-w // block)
-    f = torch.randn(2, nby, nbx, generator=g) * 40
-    f.view(-1)[::5] = NAN
-    f.view(-1)[1::7] = -0.0
-    p = torch.randint(1, 1024, (1, nby, nbx), generator=g)
-    for t in (f, p):
-        k, r = K.upsample_block_flow(t, h, w, block), fsr3.upsample_block_flow(t, h, w, block)
-        assert k.dtype == r.dtype and k.shape == r.shape
-        assert torch.equal(k.view(torch.int32) if k.is_floating_point() else k,
-                           r.view(torch.int32) if r.is_floating_point() else r)
-
-
 def test_vector_median_is_the_references():
     """The 3x3 vector median of the block search (numba) against the torch reference on
     integer fields: edges, large vectors (where the centre's 1e-3 vanishes in float32 and

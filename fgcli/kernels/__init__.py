@@ -29,7 +29,6 @@ KERNEL_OPS = {
     "crossfade": "fgcli.kernels.reference",
     "guiding_flows": "fgcli.ops.mvinterp",
     "block_flow": "fgcli.ops.fsr3",
-    "upsample_block_flow": "fgcli.ops.fsr3",
     "vector_field": "fgcli.ops.fsr3",
     "reconstruct_depths": "fgcli.ops.fsr3",
     # gffe: the ops whose camera geometry (unproject / project) runs in fgcli.kernels.geom

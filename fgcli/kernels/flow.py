@@ -276,19 +276,6 @@ def pool2_u8_kernel(src, dst):
                 dst[oy, wf] = src[y0, w - 1]
 
 
-@njit(**KERNEL)
-def upsample_block_kernel(f, block, out):
-    """fgcli.ops.fsr3.upsample_block_flow: out[c, y, x] = f[c, y // block, x // block] for
-    (C, nby, nbx) -> (C, H, W) (any dtype, the same in both)."""
-    c, h, w = out.shape
-    for q in prange(c * h):
-        k = q // h
-        y = q - k * h
-        by = y // block
-        for x in range(w):
-            out[k, y, x] = f[k, by, x // block]
-
-
 # ----------------------------------------------------------------------------- luma8
 
 @njit(**KERNEL)

@@ -545,18 +545,6 @@ def _inputs():
     return locals()
 
 
-def _warm_flow(c):
-    """The block flow's pieces an 8x8 frame does not reach: a pyramid level (frames of 16
-    px and up) and the per-pixel upsampling of a vector field and its priority."""
-    from fgcli.kernels._intrin import HAVE_MPSADBW
-    from fgcli.kernels.flow import pool2_u8_kernel
-
-    if HAVE_MPSADBW:
-        pool2_u8_kernel(np.zeros((8, 8), dtype=np.uint8), np.empty((4, 4), dtype=np.uint8))
-    upsample_block_flow(c[:2], 16, 16, 2)
-    upsample_block_flow(c[:1].to(torch.int64), 16, 16, 2)
-
-
 # two groups of about equal compile time (compiled by two processes on a cold cache), each
 # call tagged with its kernel family: "core" (mob-fgsr, mv-warp, blend and the shared
 # dilation / splat / gap fill), "fsr3", "gffe". A run loads the families its stages use.
@@ -592,7 +580,6 @@ _GROUPS = (
      ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),
      ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
      ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
-     ("fsr3", lambda i: _warm_flow(i["c"])),
      ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64))),
      ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
      ("gffe", lambda i: _warm_gffe(i["d"]))),
@@ -640,7 +627,6 @@ def _cache_cold(families=None) -> bool:
         if HAVE_MPSADBW:  # (compiled only where it runs)
             kernels += (flow.block_search_sad_kernel, flow.luma_u8_kernel,
                         flow.pool2_u8_kernel)
-        kernels += (flow.upsample_block_kernel,)
         kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
                     field.field_scatter_kernel, field.field_walk_kernel,
                     field.field_merge_kernel,
@@ -788,23 +774,6 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
         return _block_flow_u8(lum0, lum1, levels, median)
     return FS.block_flow_chain(_block_level, lum0, lum1, levels, block, search, median,
                                subpixel, pool=avg_pool2, median3=_median3)
-
-
-def upsample_block_flow(flow, h, w, block=8):
-    """fgcli.ops.fsr3.upsample_block_flow by one kernel pass (repeat_interleave twice
-    wrote the field twice: 1.6 ms for a 1080p vector field and its priority)."""
-    from fgcli.ops import fsr3 as FS
-
-    if not (isinstance(flow, torch.Tensor) and flow.device.type == "cpu" and flow.dim() == 3
-            and flow.dtype in (torch.float32, torch.int64) and isinstance(block, int)
-            and block >= 1 and 0 <= h <= flow.shape[1] * block
-            and 0 <= w <= flow.shape[2] * block):
-        return FS.upsample_block_flow(flow, h, w, block)
-    from fgcli.kernels.flow import upsample_block_kernel
-
-    out = _empty(flow.shape[0], h, w, dtype=flow.dtype)
-    upsample_block_kernel(_a(flow), block, out.numpy())
-    return out
 
 
 def _block_flow_u8(lum0, lum1, levels, median):

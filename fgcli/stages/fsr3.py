@@ -131,7 +131,7 @@ class FSR3OpticalFlow(Stage):
     def run(self, ctx):
         from fgcli.ops._util import all_set, reads_back
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import dis_flow, magnitude_priority
+        from fgcli.ops.fsr3 import dis_flow, magnitude_priority, upsample_block_flow
 
         c0, c1 = ctx["color0"], ctx["color1"]
         h, w = c1.shape[-2:]
@@ -160,8 +160,7 @@ class FSR3OpticalFlow(Stage):
             if memo is not None:
                 memo.update(pair=key, f=f, hi=hi, luma=((n1, key[2]), l1))
         if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
-            up = op("upsample_block_flow", ctx)
-            f, hi = up(f, h, w, 8), up(hi, h, w, 8)
+            f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
         vec, prio, valid = op("unpack_vector_field", ctx)(field)
         if not reads_back(valid) or not all_set(valid):
