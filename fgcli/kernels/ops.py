@@ -545,6 +545,16 @@ def _inputs():
     return locals()
 
 
+def _warm_pyramid_u8():
+    """The block flow's byte pyramid level, which an 8x8 frame does not reach (frames of
+    16 px and up)."""
+    from fgcli.kernels._intrin import HAVE_MPSADBW
+    from fgcli.kernels.flow import pool2_u8_kernel
+
+    if HAVE_MPSADBW:
+        pool2_u8_kernel(np.zeros((8, 8), dtype=np.uint8), np.empty((4, 4), dtype=np.uint8))
+
+
 # two groups of about equal compile time (compiled by two processes on a cold cache), each
 # call tagged with its kernel family: "core" (mob-fgsr, mv-warp, blend and the shared
 # dilation / splat / gap fill), "fsr3", "gffe". A run loads the families its stages use.
@@ -580,6 +590,7 @@ _GROUPS = (
      ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),
      ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
      ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
+     ("fsr3", lambda i: _warm_pyramid_u8()),
      ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64))),
      ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
      ("gffe", lambda i: _warm_gffe(i["d"]))),
