@@ -103,8 +103,21 @@ def main():
             sync()
         return out
 
-    ref = median_ms(copy_frame, args.repeat)
-    print(f"reference: copy one frame's color+depth+mv tensors = {ref:.2f} ms\n")
+    def copy_sample():
+        copy_frame()  # (as at the start: a timed copy follows a copy, not a pipeline run)
+        t0 = time.perf_counter()
+        copy_frame()
+        return (time.perf_counter() - t0) * 1000
+
+    # the reference is sampled again between the pipelines' runs (its median over a run
+    # moved 1.9-6.0 ms between runs on the 2-core box when it was taken once at the start,
+    # which made the ratios noise); x_copy divides by the samples taken while that
+    # pipeline ran, copy_ms is the median of all
+    copy_frame()
+    copy_samples = [copy_sample() for _ in range(args.repeat)]
+    ref = statistics.median(copy_samples)
+    print(f"reference: copy one frame's color+depth+mv tensors = {ref:.2f} ms (at the start; "
+          f"resampled between the pipelines' runs)\n")
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "f.0001.exr")
@@ -165,6 +178,7 @@ def main():
                 stages = p.build(mode)
                 tms = {b: Timings() for b in backends}
                 first = {}
+                local = []  # the reference, sampled between this pipeline's runs
                 try:
                     # interleaved: torch, numba, torch, ... so load changes hit both alike;
                     # the first run of each backend (numba: loading/compiling kernels) is
@@ -179,20 +193,23 @@ def main():
                             run_stages(stages, ctx, tms[b], sync=sync)
                             if k == 0:
                                 first[b] = (time.perf_counter() - t0) * 1000.0
+                        local.append(copy_sample())
                 except Exception as e:  # noqa: BLE001 - a benchmark reports and goes on
                     print(f"| {p.label} | {mode} | error: {type(e).__name__}: {e} |")
                     continue
                 summ = {b: tms[b].summary() for b in backends}
+                copy_samples += local
+                lref = statistics.median(local)
                 entry = {}
                 for b in backends:
                     s = summ[b]
                     entry[b] = {"ms_per_frame": s["ms_per_frame"],
-                                "x_copy": s["ms_per_frame"] / ref,
+                                "x_copy": s["ms_per_frame"] / lref,
                                 "first_call_ms": first[b], "stages": s["stages"]}
                 main_b = backends[-1]
                 result["pipelines"].setdefault(p.label, {})[mode] = {
                     "ms_per_frame": entry[main_b]["ms_per_frame"],
-                    "x_copy": entry[main_b]["x_copy"], "backend": main_b,
+                    "x_copy": entry[main_b]["x_copy"], "copy_ms": lref, "backend": main_b,
                     "stages": entry[main_b]["stages"], "backends": entry}
                 if cuda:
                     # frames back to back with no clock read between stages or frames, one
@@ -237,6 +254,10 @@ def main():
                                       f"{rep['stages']}; vs CPU: {vs}" + "".join(
                                           f"\n    {n} x {site}" for site, n in rep["sites"]))
                 sys.stdout.flush()
+    result["copy_ms"] = statistics.median(copy_samples)
+    print(f"\nreference over the run: copy_ms {result['copy_ms']:.2f} (median of "
+          f"{len(copy_samples)} copies, {min(copy_samples):.2f}-{max(copy_samples):.2f}); "
+          f"x copy above: against the copies taken while that pipeline ran")
     if stream_lines:
         print("\n" + "\n".join(stream_lines))
     if sync_lines:
