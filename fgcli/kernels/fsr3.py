@@ -24,7 +24,7 @@ from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, 
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
 from fgcli.kernels._intrin import ld_pair, mad32
-from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32
 
 
 @njit(**INLINE)
@@ -243,10 +243,11 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
 def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
     """interpolated_depth: sanitize_depth(depth_t), and where that is +inf the minimum of
     the sanitised depth0 at the nearest pixel to q + a v and depth1 at q + na v (a =
-    alpha, na = -(1 - alpha), float32)."""
+    alpha, na = -(1 - alpha), float32; C-contiguous depths of fewer than 2**31 pixels)."""
     h, w = depth_t.shape
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
     for py in prange(h):
         y = np.int64(py)
         yf = F32(y)
@@ -256,9 +257,9 @@ def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
                 xf = F32(x)
-                z0 = sdepth_b(_nearest_depth(depth0, sflow_b(vx * a), sflow_b(vy * a), xf, yf,
-                                             wm1, hm1))
-                z1 = sdepth_b(_nearest_depth(depth1, sflow_b(vx * na), sflow_b(vy * na), xf,
-                                             yf, wm1, hm1))
+                z0 = sdepth_b(_nearest_depth32(depth0, sflow_b(vx * a), sflow_b(vy * a), xf,
+                                               yf, wm1, hm1, w32))
+                z1 = sdepth_b(_nearest_depth32(depth1, sflow_b(vx * na), sflow_b(vy * na), xf,
+                                               yf, wm1, hm1, w32))
                 z = z0 if z0 < z1 else z1
             out[y, x] = z

@@ -235,8 +235,10 @@ def warp_frames(color1, depth1, to1, color0=None, depth0=None, to0=None, mode="b
 
 
 def mv_warp(color, depth, mv, scale, mode="bilinear", raw_depth_flow=True):
+    from fgcli.kernels.warp import flat_ok
+
     if mode != "bilinear" or not _cpu(color, depth, mv) or depth.shape[0] != 1 or \
-            color.shape[-3] != 3:
+            color.shape[-3] != 3 or not flat_ok(*color.shape[-2:], 3):
         return RF.mv_warp(color, depth, mv, scale, mode, raw_depth_flow)
     color = check_tensor(color, "img")
     mv = check_tensor(mv, "mv", 2)
@@ -413,7 +415,8 @@ def interpolated_depth(depth_t, vec, alpha=0.5, depth0=None, depth1=None):
     from fgcli.ops import fsr3 as FS
 
     if depth0 is None or depth1 is None or not _cpu(depth_t, vec, depth0, depth1) or \
-            any(t.shape[0] != 1 or t.dtype != torch.float32 for t in (depth_t, depth0, depth1)):
+            any(t.shape[0] != 1 or t.dtype != torch.float32 for t in (depth_t, depth0, depth1)) \
+            or depth_t[0].numel() >= 2 ** 31:  # (32-bit indices)
         return FS.interpolated_depth(depth_t, vec, alpha, depth0, depth1)
     a = check_alpha(alpha)
     from fgcli.kernels.fsr3 import interp_depth_kernel

@@ -18,25 +18,25 @@ I32 = np.int32
 
 
 @njit(**INLINE)
-def _coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
-    """Bilinear taps and weights of grid_sample(bilinear, border, align_corners=False) on
-    the normalised grid ``gxn + f * 2 / w``: (y0, x0, y1, x1, nw, ne, sw, se)."""
-    return _grid_coords(fma(fx, kx, gxn_x), fma(fy, ky, gyy), hw, hh, wm1, hm1, w, h)
-
-
-@njit(**INLINE)
-def _grid_coords(gx, gy, hw, hh, wm1, hm1, w, h):
-    """_coords at the normalised grid point (gx, gy) itself."""
-    # unnormalise ((g + 1) * size / 2 - 0.5, one FMA as ATen's vectorised kernel is
-    # compiled) and clip to the border
+def _unnormalise(gx, gy, hw, hh, wm1, hm1):
+    """grid_sample(bilinear, border, align_corners=False)'s source position of the
+    normalised grid point (gx, gy): ((g + 1) * size / 2 - 0.5, one FMA as ATen's vectorised
+    kernel is compiled, clipped to the border), as (x0f, y0f, tx, ty, 1 - tx, 1 - ty): the
+    floors and the fractions."""
     ix = clamp_b(fma(gx + F32(1.0), hw, F32(-0.5)), F32(0.0), wm1)
     iy = clamp_b(fma(gy + F32(1.0), hh, F32(-0.5)), F32(0.0), hm1)
     x0f = np.floor(ix)
     y0f = np.floor(iy)
     tx = ix - x0f
     ty = iy - y0f
-    e = F32(1.0) - tx
-    s = F32(1.0) - ty
+    return x0f, y0f, tx, ty, F32(1.0) - tx, F32(1.0) - ty
+
+
+@njit(**INLINE)
+def _grid_coords(gx, gy, hw, hh, wm1, hm1, w, h):
+    """Bilinear taps and weights at the normalised grid point (gx, gy): (y0, x0, y1, x1,
+    nw, ne, sw, se), int64 indices (pyramid levels of any size)."""
+    x0f, y0f, tx, ty, e, s = _unnormalise(gx, gy, hw, hh, wm1, hm1)
     x0 = np.int64(x0f)
     y0 = np.int64(y0f)
     xin = x0 + 1 < w
@@ -51,30 +51,15 @@ def _grid_coords(gx, gy, hw, hh, wm1, hm1, w, h):
 
 
 @njit(**INLINE)
-def _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se):
-    """One channel: nw + ne + sw + se, contracted to an FMA chain as in ATen's build."""
-    vnw = sval_b(img[k, y0, x0])
-    vne = sval_b(img[k, y0, x1])
-    vsw = sval_b(img[k, y1, x0])
-    vse = sval_b(img[k, y1, x1])
-    return fma(vse, se, fma(vsw, sw, fma(vne, ne, vnw * nw)))
-
-
-@njit(**INLINE)
 def _flat_coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
-    """_coords for the 32-bit pair loads (w, h int32; the caller checks 2 <= w and
-    planes * h * w < 2**31): (p, rs, xi, nw, ne, sw, se), where the taps (x0, x1) of row
-    y0 are elements p, p + 1 of a plane (p = y0 * w + x0, or one left when x0 is the last
-    column: x1 = x0 there and its weight is 0), row y1's are p + rs, xi = 1 when x1 = x0 + 1.
-    Same weights as _coords."""
-    ix = clamp_b(fma(fma(fx, kx, gxn_x) + F32(1.0), hw, F32(-0.5)), F32(0.0), wm1)
-    iy = clamp_b(fma(fma(fy, ky, gyy) + F32(1.0), hh, F32(-0.5)), F32(0.0), hm1)
-    x0f = np.floor(ix)
-    y0f = np.floor(iy)
-    tx = ix - x0f
-    ty = iy - y0f
-    e = F32(1.0) - tx
-    s = F32(1.0) - ty
+    """Bilinear taps and weights of grid_sample(bilinear, border, align_corners=False) on
+    the normalised grid ``gxn + f * 2 / w``, for the 32-bit pair loads (w, h int32; the
+    caller checks 2 <= w and planes * h * w < 2**31): (p, rs, xi, nw, ne, sw, se), where
+    the taps (x0, x1) of row y0 are elements p, p + 1 of a plane (p = y0 * w + x0, or one
+    left when x0 is the last column: x1 = x0 there and its weight is 0), row y1's are
+    p + rs, xi = 1 when x1 = x0 + 1. The same weights as _grid_coords."""
+    x0f, y0f, tx, ty, e, s = _unnormalise(fma(fx, kx, gxn_x), fma(fy, ky, gyy), hw, hh, wm1,
+                                          hm1)
     x0 = I32(x0f)
     y0 = I32(y0f)
     xin = x0 + I32(1) < w
@@ -91,8 +76,9 @@ def _flat_coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
 
 @njit(**INLINE)
 def _bil_pair(img, p, rs, xi, nw, ne, sw, se):
-    """_bil from two pair loads at flat index p (the channel's plane offset included) and
-    p + rs: the same four values (x1 = x0 at the last column reads x0 twice) and sum."""
+    """One channel's bilinear sample from two pair loads at flat index p (the channel's
+    plane offset included) and p + rs (x1 = x0 at the last column reads x0 twice): the
+    sanitised taps' nw + ne + sw + se, contracted to an FMA chain as in ATen's build."""
     a, b = ld_pair(img, p)
     vnw = sval_b(a if xi != 0 else b)
     vne = sval_b(b)
@@ -104,7 +90,8 @@ def _bil_pair(img, p, rs, xi, nw, ne, sw, se):
 
 @njit(**INLINE)
 def _nearest_depth32(depth, fx, fy, xf, yf, wm1, hm1, w):
-    """_nearest_depth through a 32-bit index (w int32)."""
+    """sample_nearest of a C-contiguous (H, W) depth at the sanitised flow (32-bit index,
+    w int32); NaN -> +inf."""
     jx = clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1)
     jy = clamp_b(np.floor(fy + (yf + F32(0.5))), F32(0.0), hm1)
     v = ld32(depth, mad32(I32(jy), w, I32(jx)))
@@ -114,15 +101,6 @@ def _nearest_depth32(depth, fx, fy, xf, yf, wm1, hm1, w):
 def flat_ok(h: int, w: int, planes: int) -> bool:
     """Whether the pair-load kernels apply: 2 <= w and every flat index fits int32."""
     return w >= 2 and planes * h * w < 2 ** 31
-
-
-@njit(**INLINE)
-def _nearest_depth(depth, fx, fy, xf, yf, wm1, hm1):
-    """sample_nearest of a (H, W) depth at the sanitised flow; NaN -> +inf."""
-    jx = clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1)
-    jy = clamp_b(np.floor(fy + (yf + F32(0.5))), F32(0.0), hm1)
-    v = depth[np.int64(jy), np.int64(jx)]
-    return INF if v != v else v
 
 
 # Loops live in the kernels themselves and have constant trip counts inside the row loop:
@@ -184,12 +162,15 @@ def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0
 def mv_warp_kernel(img, depth, mv, scale, raw_depth_flow, gxn, gyn, kx, ky, out, dout):
     """mv-warp baseline (3-channel colour): colour warped by sanitize_mv(mv) * scale
     (bilinear), depth fetched at mv * scale (the raw vectors when raw_depth_flow, as the
-    reference), nearest."""
+    reference), nearest. C-contiguous colour and depth, flat_ok(h, w, 3)."""
     h, w = depth.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
     for py in prange(h):
         y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
         yf = F32(y)
@@ -200,14 +181,14 @@ def mv_warp_kernel(img, depth, mv, scale, raw_depth_flow, gxn, gyn, kx, ky, out,
             fx = sflow_b(smv_b(mx) * scale)
             fy = sflow_b(smv_b(my) * scale)
             zero = (fx == F32(0.0)) & (fy == F32(0.0))
-            y0, x0, y1, x1, nw, ne, sw, se = _coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh,
-                                                     wm1, hm1, w, h)
+            p, rs, xi, nw, ne, sw, se = _flat_coords(fx, fy, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                                     hm1, w32, h32)
             for k in range(3):
-                r = _bil(img, k, y0, x0, y1, x1, nw, ne, sw, se)
+                r = _bil_pair(img, mad32(I32(k), hw32, p), rs, xi, nw, ne, sw, se)
                 out[k, y, x] = sval_b(img[k, y, x]) if zero else r
             rfx = sflow_b(mx * scale)
             rfy = sflow_b(my * scale)
             dx = rfx if raw_depth_flow else fx
             dy = rfy if raw_depth_flow else fy
-            dout[y, x] = _nearest_depth(depth, dx, dy, F32(x), yf, wm1, hm1)
+            dout[y, x] = _nearest_depth32(depth, dx, dy, F32(x), yf, wm1, hm1, w32)
 
