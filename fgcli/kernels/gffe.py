@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
-from fgcli.kernels._intrin import atomic_min_i64, ld32, mad32
+from fgcli.kernels._intrin import atomic_min_i64, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
@@ -180,21 +180,21 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
     wf = F32(w)
     i2 = 2 if quad else 1  # (k = 2: a plane that exists, unused)
     two = F32(2.0)
-    # the winner's flat index n: the element [n // w, n % w] with no division, through
-    # 32-bit indexed loads (C-contiguous traj and dyn, 4 k h w < 2**31)
-    hw = I32(h * w)
+    # the winner's flat index n reads flat views: the element [n // w, n % w], no division
+    tf = traj.reshape((traj.shape[0], 4, h * w))
+    df = dyn.reshape(h * w)
     for pr in prange(h):
         y = np.int64(pr)
-        nidx = np.empty(w, dtype=np.int32)
+        nidx = np.empty(w, dtype=np.int64)
         both = np.empty(w, dtype=np.float32)
         for x in range(w):
             fi = clamp_b(np.floor(src[1, y, x]), ZERO, hm1) * wf + \
                 clamp_b(np.floor(src[0, y, x]), ZERO, wm1)
-            n = I32(fi)
+            n = np.int64(fi)
             nidx[x] = n
-            t3 = ld32(traj, mad32(I32(3), hw, n))
+            t3 = tf[0, 3, n]
             b = (t3 > ZERO) & (traj[0, 3, y, x] > ZERO)
-            dn = (ld32(dyn, n) != U0) | (not has_dyn)
+            dn = (df[n] != U0) | (not has_dyn)
             dx = (dyn[y, x] != U0) & has_dyn
             b = b & dn & (not dx)
             both[x] = ONE if b else ZERO
@@ -204,22 +204,17 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
         for x in range(w):
             n = nidx[x]
             b = both[x] != ZERO
-            t03 = ld32(traj, mad32(I32(3), hw, n))
-            t13 = ld32(traj, mad32(I32(7), hw, n))
-            t23 = ld32(traj, mad32(I32(4 * i2 + 3), hw, n))
-            ok1 = b & (t13 == t03)
-            ok2 = b & (t23 == t03)
+            t03 = tf[0, 3, n]
+            ok1 = b & (tf[1, 3, n] == t03)
+            ok2 = b & (tf[i2, 3, n] == t03)
             p03 = out[3, y, x]
-            q13 = (p03 - (t03 - t13)) if ok1 else traj[1, 3, y, x]
-            q23 = (p03 - (t03 - t23)) if ok2 else traj[i2, 3, y, x]
+            q13 = (p03 - (t03 - tf[1, 3, n])) if ok1 else traj[1, 3, y, x]
+            q23 = (p03 - (t03 - tf[i2, 3, n])) if ok2 else traj[i2, 3, y, x]
             same = (q13 == p03) & ((q23 == p03) | (not quad))
             for c in range(3):
                 p0c = out[c, y, x]
-                t0c = ld32(traj, mad32(I32(c), hw, n))
-                q1 = (p0c - (t0c - ld32(traj, mad32(I32(4 + c), hw, n)))) if ok1 else \
-                    traj[1, c, y, x]
-                q2 = (p0c - (t0c - ld32(traj, mad32(I32(4 * i2 + c), hw, n)))) if ok2 else \
-                    traj[i2, c, y, x]
+                q1 = (p0c - (tf[0, c, n] - tf[1, c, n])) if ok1 else traj[1, c, y, x]
+                q2 = (p0c - (tf[0, c, n] - tf[i2, c, n])) if ok2 else traj[i2, c, y, x]
                 r = p0c + a * (p0c - q1)
                 rq = r + cq * ((p0c - two * q1) + q2)
                 r = rq if quad else r
@@ -907,12 +902,10 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
     nprev), else P'_0; pf (the fallback's point) where fb; each where the pixel is used
     (use, P'_0 a surface as p) and the sample is of p's kind, else p. dyn = the used
     pixels. (Without a fallback, fb is zero; unused inputs are same-shape stand-ins.)
-    One row loop per plane group and source (a single kind of read in each). prev is
-    read at the flat index idx through 32-bit indexed loads (C-contiguous, fewer than
-    2**31 elements)."""
+    One row loop per plane group and source (a single kind of read in each)."""
     k = out.shape[0]
     h, w = use.shape
-    hw = I32(prev.shape[2] * prev.shape[3])
+    pvf = prev.reshape((prev.shape[0], 4, prev.shape[2] * prev.shape[3]))  # (flat: idx)
     for pr in prange(h):
         y = np.int64(pr)
         ub = np.empty(w, dtype=np.float32)
@@ -921,14 +914,14 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
                 out[0, c, y, x] = p[c, y, x]
         if from_prev:
             for x in range(w):
-                n = I32(idx[y, x])
+                n = idx[y, x]
                 f = fb[y, x] != U0
                 p3 = p[3, y, x]
-                q3 = pf[3, y, x] if f else ld32(prev, mad32(I32(3), hw, n))
+                q3 = pf[3, y, x] if f else pvf[0, 3, n]
                 u = (use[y, x] != U0) & (q3 == p3) & (q3 > ZERO)
                 ub[x] = ONE if u else ZERO
                 for c in range(4):
-                    q = pf[c, y, x] if f else ld32(prev, mad32(I32(c), hw, n))
+                    q = pf[c, y, x] if f else pvf[0, c, n]
                     out[1, c, y, x] = q if u else p[c, y, x]
         else:
             for x in range(w):
@@ -945,12 +938,12 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
         for i in range(2, k):
             if i - 1 < nprev:
                 for x in range(w):
-                    n = I32(idx[y, x])
+                    n = idx[y, x]
                     f = fb[y, x] != U0
-                    q3 = pf[3, y, x] if f else ld32(prev, mad32(I32(4 * i - 1), hw, n))
+                    q3 = pf[3, y, x] if f else pvf[i - 1, 3, n]
                     t = (ub[x] != ZERO) & (q3 == p[3, y, x])
                     for c in range(4):
-                        q = pf[c, y, x] if f else ld32(prev, mad32(I32(4 * i - 4 + c), hw, n))
+                        q = pf[c, y, x] if f else pvf[i - 1, c, n]
                         out[i, c, y, x] = q if t else p[c, y, x]
             else:  # P'_0 again (its kind is p's wherever the pixel is used)
                 for x in range(w):

@@ -1210,8 +1210,7 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
           and lookup in ("match", "nearest")
           and (depth0 is None or (_f32cpu(depth0) and depth0.shape == depth1.shape))
           and (prev is None or (_f32cpu(prev, 4) and prev.shape[0] >= 1
-                                and tuple(prev.shape[1:]) == (4, h, w)))
-          and 4 * (prev.shape[0] if prev is not None else 1) * h * w < 2 ** 31)
+                                and tuple(prev.shape[1:]) == (4, h, w))))
     if not ok:
         return G.track_history(depth1, mv1, cam1, cam0, depth0, prev, k, threshold,
                                first_frame, lookup, match_tol, geom=GEOM)
@@ -1353,7 +1352,7 @@ def dilated_positions(traj, depth1, cam1, dynamic, alpha, motion="linear", geom=
     ok = _f32cpu(traj, 4) and traj.shape[1] == 4 and traj.shape[0] >= 2 and \
         _f32cpu(depth1) and depth1.shape == (1,) + tuple(traj.shape[-2:]) and \
         (dynamic is None or _boolcpu(dynamic, depth1.shape)) and \
-        motion in ("linear", "quadratic") and traj.numel() < 2 ** 31
+        motion in ("linear", "quadratic")
     if ok:
         try:
             a = check_alpha(alpha, hi=None)
