@@ -58,8 +58,9 @@ def lerp(a, b, w):
 
 
 @njit(**INLINE)
-def _agree_b(x, y, t):
-    return (x == y) | (abs(x - y) <= min(x, y) * t)
+def _agree_i(x, y, t):
+    """_agree as an int32 flag (0 / 1)."""
+    return np.int32((x == y) | (abs(x - y) <= min(x, y) * t))
 
 
 @njit(**INLINE)
@@ -68,44 +69,54 @@ def _lerp_b(a, b, w):
     return fma(w, b - a, a) if abs(w) < F32(0.5) else fma(w - F32(1.0), b - a, b)
 
 
+# The Eq. 1 helpers keep every flag an int32 0 / 1, and the kernels read the valid masks
+# as uint8: numba's parfor alias analysis counts a bool variable that is copied (a helper's
+# bool result, a bool chosen by a ternary, a read of a bool array) as a possible array
+# alias, and one such variable drops noalias from every array argument of the kernel, so
+# LLVM leaves its gather loops scalar (a warp + blend kernel tried this stop ran 1.5x
+# slower so). With noalias, LLVM vectorises everything it can, so blend_kernel lists the
+# few pixels its table test needs first (a scalar compaction): a loop over the row that
+# tests each pixel was vectorised too (masked table gathers at every pixel), 2x slower.
 @njit(**INLINE)
 def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_static,
             a, near_w, td, endpoint, out_d):
     """Eq. 1 at pixel x of sample row ``ys`` (c0, c1 (3, ., W), d0, d1, v0, v1 (., W): the
-    warped samples) and frame row ``y`` (dt, mvalid, to1, to0: full frames), except the
-    brightness test: writes the depth, returns (weight, needs the brightness test)."""
+    warped samples, v0 / v1 uint8) and frame row ``y`` (dt, mvalid (uint8), to1, to0: full
+    frames), except the brightness test: writes the depth, returns (weight, needs the
+    brightness test as int32 0 / 1)."""
+    one = np.int32(1)
     thr_static = F32(1e-3)
     e0 = sdepth_b(d0[ys, x])
     e1 = sdepth_b(d1[ys, x])
-    p0 = v0[ys, x]
-    p1 = v1[ys, x]
-    agree = _agree_b(e0, e1, td)
-    take0 = e0 > e1
+    p0 = np.int32(v0[ys, x] != 0)
+    p1 = np.int32(v1[ys, x] != 0)
+    agree = _agree_i(e0, e1, td)
+    take0 = np.int32(e0 > e1)
     if has_dt:
         t = sdepth_b(dt[y, x])
-        m0 = _agree_b(e0, t, td)
-        m1 = _agree_b(e1, t, td)
+        m0 = _agree_i(e0, t, td)
+        m1 = _agree_i(e1, t, td)
         take0 = m0 if m0 != m1 else take0
-    dis = p0 & p1 & (not agree)
-    pick0 = (dis & take0) | (p0 & (not p1))
-    pick1 = (dis & (not take0)) | (p1 & (not p0))
-    none = not (p0 | p1)
-    static = False
+    dis = p0 & p1 & (one - agree)
+    pick0 = (dis & take0) | (p0 & (one - p1))
+    pick1 = (dis & (one - take0)) | (p1 & (one - p0))
+    none = one - (p0 | p1)
+    static = np.int32(0)
     if has_static:
-        static = mvalid[y, x] & \
-            (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) & \
-            (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static)
-    mid = (not (pick0 | pick1 | none)) & agree & (endpoint == 0) & (not static)
-    eqc = (sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) & \
-        (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) & \
-        (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x]))
+        static = np.int32((mvalid[y, x] != 0) &
+                          (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) &
+                          (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static))
+    mid = (one - (pick0 | pick1 | none)) & agree & np.int32(endpoint == 0) & (one - static)
+    eqc = np.int32((sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) &
+                   (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) &
+                   (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x])))
     wt = a
-    wt = near_w if (mid & eqc) | none else wt
-    wt = F32(0.0) if pick0 else wt
-    wt = F32(1.0) if pick1 else wt
-    take_d0 = pick0 | ((agree | none) & (not pick1) & (near_w == F32(0.0)))
-    out_d[y, x] = e0 if take_d0 else e1
-    return wt, mid & (not eqc)
+    wt = near_w if ((mid & eqc) | none) != 0 else wt
+    wt = F32(0.0) if pick0 != 0 else wt
+    wt = F32(1.0) if pick1 != 0 else wt
+    take_d0 = pick0 | ((agree | none) & (one - pick1) & np.int32(near_w == F32(0.0)))
+    out_d[y, x] = e0 if take_d0 != 0 else e1
+    return wt, mid & (one - eqc)
 
 
 @njit(**INLINE)
@@ -115,7 +126,7 @@ def _similar(c0, c1, ys, x, tb, table, base):
     q1 = abs(_enc(sval(c0[1, ys, x]), table, base) - _enc(sval(c1[1, ys, x]), table, base))
     q2 = abs(_enc(sval(c0[2, ys, x]), table, base) - _enc(sval(c1[2, ys, x]), table, base))
     bd = fma(q1, F32(1.055), (q0 + q2) * F32(0.5 * 1.055))
-    return bd <= tb
+    return np.int32(bd <= tb)
 
 
 # Bounds of the brightness difference that decide most pixels without the table (exact:
@@ -135,13 +146,16 @@ def _slope_hi(m):
     """An upper bound of p x^(p-1) for x >= m (m in [_LO, 1]): p 2^ceil(-e 7/12), e the
     binary exponent of m."""
     e = np.int32(127) - ((bits(m) >> 23) & np.int32(255))  # -e, 0..9 here
-    n = (np.int32(7) * e + np.int32(11)) // np.int32(12)
+    # ceil(7 e / 12) = (7 e + 11) // 12, as a multiply and shift: exact for 7 e + 11 < 128
+    # (e <= 9 gives at most 74); numba's // on ints keeps Python's floor semantics and
+    # zero check, which cost ~1 ms per 1080p frame in the blend
+    n = ((np.int32(7) * e + np.int32(11)) * np.int32(43)) >> np.int32(9)
     return F32(5.0 / 12.0 * 1.0000002) * (np.int32((np.int32(127) + n) << 23)).view(np.float32)
 
 
 @njit(**INLINE)
 def _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej):
-    """(surely similar, surely not) by the slope bounds, without the table."""
+    """(surely similar, surely not) by the slope bounds, without the table (int32 0 / 1)."""
     a0 = min(max(sval_b(c0[0, ys, x]), _LO), F32(1.0))
     a1 = min(max(sval_b(c0[1, ys, x]), _LO), F32(1.0))
     a2 = min(max(sval_b(c0[2, ys, x]), _LO), F32(1.0))
@@ -154,7 +168,7 @@ def _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej):
     hi = F32(1.055) * (_slope_hi(min(a1, b1)) * d1 +
                        F32(0.5) * (_slope_hi(min(a0, b0)) * d0 + _slope_hi(min(a2, b2)) * d2))
     lo = F32(1.055) * _P_LO * (d1 + F32(0.5) * (d0 + d2))
-    return hi <= tb_acc, lo >= tb_rej
+    return np.int32(hi <= tb_acc), np.int32(lo >= tb_rej)
 
 
 @njit(**INLINE)
@@ -183,16 +197,26 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
         yb = (np.int64(ch) + 1) * h // nch
         wts = np.empty(w, dtype=np.float32)
         need = np.empty(w, dtype=np.uint8)
+        idx = np.empty(w, dtype=np.int32)
         for y in range(ya, yb):
+            nn = np.int32(0)
             for x in range(w):
                 wt, nd = _eq1_px(c0, c1, d0, d1, v0, v1, y, x, y, dt, has_dt, mvalid, to1,
                                  to0, has_static, a, near_w, td, endpoint, out_d)
                 sure, sure_not = _bright_bounds(c0, c1, y, x, tb_acc, tb_rej)
-                wts[x] = near_w if nd & sure else wt
-                need[x] = np.uint8(1) if nd & (not sure) & (not sure_not) else np.uint8(0)
-            for x in range(w):  # the undecided few: the table (scalar)
-                if need[x] != 0 and _similar(c0, c1, y, x, tb, table, base):
-                    wts[x] = near_w
+                wts[x] = near_w if (nd & sure) != 0 else wt
+                u = nd & (np.int32(1) - (sure | sure_not))
+                need[x] = np.uint8(u)
+                nn += u
+            if nn > 0:  # the undecided few: the table, pixel by pixel
+                n = 0
+                for x in range(w):
+                    idx[n] = np.int32(x)
+                    n += np.int32(need[x])
+                for i in range(n):
+                    x = np.int64(idx[i])
+                    if _similar(c0, c1, y, x, tb, table, base) != 0:
+                        wts[x] = near_w
             # one plane at a time: a pixel loop writing all three planes ran 3-6x slower
             for k in range(3):
                 for x in range(w):
@@ -223,3 +247,4 @@ def any_nonzero_kernel(a):
         if a[i] != F32(0.0):  # NaN != 0 is True
             return True
     return False
+

@@ -590,95 +590,117 @@ def pp_prep_kernel(depth, valid, xd, wv, wdv):
             wdv[y, x] = ONE if (v & fin) else ZERO
 
 
+@njit(**INLINE)
+def _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, xa, xb, cnt, mb, mc,
+                md):
+    """pp_down_kernel at output pixel (oy, ox) from the 2x2 block of rows ya, yb and
+    columns xa, xb (mb, mc, md: whether cells b, c, d exist, cnt their count with a)."""
+    wa = wv[ya, xa]
+    wb = wv[ya, xb]
+    wc = wv[yb, xa]
+    wd_ = wv[yb, xb]
+    va = wdv[ya, xa]
+    vb = wdv[ya, xb]
+    vc = wdv[yb, xa]
+    vd = wdv[yb, xb]
+    da = xd[ya, xa]
+    db = xd[ya, xb]
+    dc = xd[yb, xa]
+    dd_ = xd[yb, xb]
+    ea = ((da if va > ZERO else BIG30) if wa > ZERO else ZERO)
+    eb = ((db if vb > ZERO else BIG30) if wb > ZERO else ZERO)
+    ec = ((dc if vc > ZERO else BIG30) if wc > ZERO else ZERO)
+    ed = ((dd_ if vd > ZERO else BIG30) if wd_ > ZERO else ZERO)
+    mx = ea
+    mx = eb if (mb & (eb > mx)) else mx
+    mx = ec if (mc & (ec > mx)) else mx
+    mx = ed if (md & (ed > mx)) else mx
+    thr = mx * fb
+    ba = wa * (ONE if ea >= thr else ZERO)
+    bb = wb * (ONE if eb >= thr else ZERO)
+    bc = wc * (ONE if ec >= thr else ZERO)
+    bd = wd_ * (ONE if ed >= thr else ZERO)
+    s = ZERO + ba
+    s = (s + bb) if mb else s
+    s = (s + bc) if mc else s
+    s = (s + bd) if md else s
+    sw = ZERO + s / cnt
+    den = max(sw, TINY30)
+    for k in range(3):
+        s = ZERO + sval_b(xc[k, ya, xa]) * ba
+        s = (s + sval_b(xc[k, ya, xb]) * bb) if mb else s
+        s = (s + sval_b(xc[k, yb, xa]) * bc) if mc else s
+        s = (s + sval_b(xc[k, yb, xb]) * bd) if md else s
+        sx = ZERO + s / cnt
+        nxc[k, oy, ox] = (sx / den) if sw > ZERO else ZERO
+    s = ZERO + va
+    s = (s + vb) if mb else s
+    s = (s + vc) if mc else s
+    s = (s + vd) if md else s
+    swd = ZERO + s / cnt
+    s = ZERO + da * va
+    s = (s + db * vb) if mb else s
+    s = (s + dc * vc) if mc else s
+    s = (s + dd_ * vd) if md else s
+    sd = ZERO + s / cnt
+    nxd[oy, ox] = (sd / max(swd, TINY30)) if swd > ZERO else ZERO
+    nw[oy, ox] = ONE if sw > ZERO else ZERO
+    nwd[oy, ox] = ONE if swd > ZERO else ZERO
+
+
 @njit(**KERNEL)
 def pp_down_kernel(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd):
     """One level down: far-biased weights (within fb of the 2x2 block's farthest depth),
-    validity-weighted 2x2 averages of colour (xc, sanitised as read) and depth."""
+    validity-weighted 2x2 averages of colour (xc, sanitised as read) and depth.
+
+    The blocks of whole column pairs run in a loop of their own (columns 2 ox and
+    2 ox + 1: strided loads LLVM vectorises as such), the last one of an odd width apart
+    (its right cell is the left one; as a select in the same loop the column index was no
+    longer affine and every read a gather: 3x slower)."""
     h, w = xd.shape
     h2, w2 = nxd.shape
+    wp = w // 2  # blocks with two columns
     for pr in prange(h2):
         oy = np.int64(pr)
         ya = 2 * oy
         r1 = ya + 1 < h
         yb = ya + 1 if r1 else ya
-        for ox in range(w2):
-            xa = 2 * ox
-            c1 = xa + 1 < w
-            xb = xa + 1 if c1 else xa
-            cnt = F32(2 if r1 else 1) * F32(2 if c1 else 1)
-            mb = c1
-            mc = r1
-            md = r1 & c1
-            wa = wv[ya, xa]
-            wb = wv[ya, xb]
-            wc = wv[yb, xa]
-            wd_ = wv[yb, xb]
-            va = wdv[ya, xa]
-            vb = wdv[ya, xb]
-            vc = wdv[yb, xa]
-            vd = wdv[yb, xb]
-            da = xd[ya, xa]
-            db = xd[ya, xb]
-            dc = xd[yb, xa]
-            dd_ = xd[yb, xb]
-            ea = ((da if va > ZERO else BIG30) if wa > ZERO else ZERO)
-            eb = ((db if vb > ZERO else BIG30) if wb > ZERO else ZERO)
-            ec = ((dc if vc > ZERO else BIG30) if wc > ZERO else ZERO)
-            ed = ((dd_ if vd > ZERO else BIG30) if wd_ > ZERO else ZERO)
-            mx = ea
-            mx = eb if (mb & (eb > mx)) else mx
-            mx = ec if (mc & (ec > mx)) else mx
-            mx = ed if (md & (ed > mx)) else mx
-            thr = mx * fb
-            ba = wa * (ONE if ea >= thr else ZERO)
-            bb = wb * (ONE if eb >= thr else ZERO)
-            bc = wc * (ONE if ec >= thr else ZERO)
-            bd = wd_ * (ONE if ed >= thr else ZERO)
-            s = ZERO + ba
-            s = (s + bb) if mb else s
-            s = (s + bc) if mc else s
-            s = (s + bd) if md else s
-            sw = ZERO + s / cnt
-            den = max(sw, TINY30)
-            for k in range(3):
-                s = ZERO + sval_b(xc[k, ya, xa]) * ba
-                s = (s + sval_b(xc[k, ya, xb]) * bb) if mb else s
-                s = (s + sval_b(xc[k, yb, xa]) * bc) if mc else s
-                s = (s + sval_b(xc[k, yb, xb]) * bd) if md else s
-                sx = ZERO + s / cnt
-                nxc[k, oy, ox] = (sx / den) if sw > ZERO else ZERO
-            s = ZERO + va
-            s = (s + vb) if mb else s
-            s = (s + vc) if mc else s
-            s = (s + vd) if md else s
-            swd = ZERO + s / cnt
-            s = ZERO + da * va
-            s = (s + db * vb) if mb else s
-            s = (s + dc * vc) if mc else s
-            s = (s + dd_ * vd) if md else s
-            sd = ZERO + s / cnt
-            nxd[oy, ox] = (sd / max(swd, TINY30)) if swd > ZERO else ZERO
-            nw[oy, ox] = ONE if sw > ZERO else ZERO
-            nwd[oy, ox] = ONE if swd > ZERO else ZERO
+        cnt2 = F32(2 if r1 else 1) * F32(2)
+        for ox in range(wp):
+            _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, 2 * ox,
+                        2 * ox + 1, cnt2, True, r1, r1)
+        for ox in range(wp, w2):  # an odd width's last block: one column
+            _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, 2 * ox,
+                        2 * ox, F32(2 if r1 else 1), False, r1, False)
+
+
+@njit(**INLINE)
+def _pp_up_px(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd, y, x, yy, xx):
+    a = wv[y, x]
+    ad = wdv[y, x]
+    for k in range(3):
+        oxc[k, y, x] = sval_b(xc[k, y, x]) if a > ZERO else fxc[k, yy, xx]
+    oxd[y, x] = xd[y, x] if ad > ZERO else fxd[yy, xx]
+    ow[y, x] = max(a, fw[yy, xx])
+    owd[y, x] = max(ad, fwd[yy, xx])
 
 
 @njit(**KERNEL)
 def pp_up_kernel(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd):
     """One level up: the level's own values where it has weight, else the filled coarser
-    level's (nearest upsampling)."""
+    level's (nearest upsampling). Pixel pairs (2 xx, 2 xx + 1) per iteration, so every
+    index is affine in the loop counter (x >> 1 made the coarse reads gathers)."""
     h, w = xd.shape
+    wp = w // 2
     for pr in prange(h):
         y = np.int64(pr)
         yy = y >> 1
-        for x in range(w):
-            xx = np.int64(x) >> 1
-            a = wv[y, x]
-            ad = wdv[y, x]
-            for k in range(3):
-                oxc[k, y, x] = sval_b(xc[k, y, x]) if a > ZERO else fxc[k, yy, xx]
-            oxd[y, x] = xd[y, x] if ad > ZERO else fxd[yy, xx]
-            ow[y, x] = max(a, fw[yy, xx])
-            owd[y, x] = max(ad, fwd[yy, xx])
+        for xx in range(wp):
+            _pp_up_px(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd, y, 2 * xx, yy, xx)
+            _pp_up_px(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd, y, 2 * xx + 1, yy,
+                      xx)
+        for x in range(2 * wp, w):
+            _pp_up_px(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd, y, x, yy, x >> 1)
 
 
 @njit(**KERNEL)

@@ -19,11 +19,18 @@ INF = float("inf")
 _DUMMY3 = np.zeros((1, 1, 1), dtype=np.float32)
 _DUMMY2 = np.zeros((1, 1), dtype=np.float32)
 _DUMMYB = np.zeros((1, 1), dtype=np.bool_)
+_DUMMYU8 = np.zeros((1, 1), dtype=np.uint8)
 
 
 def _a(t: torch.Tensor) -> np.ndarray:
     """Contiguous numpy view of a CPU tensor (a copy only when not contiguous)."""
     return t.detach().contiguous().numpy()
+
+
+def _u8(t) -> np.ndarray:
+    """uint8 view of a bool tensor (the kernels' mask inputs: a kernel that reads a bool
+    array loses noalias on all its arguments, fgcli.kernels.blend)."""
+    return _a(t).view(np.uint8)
 
 
 def _cpu(*ts) -> bool:
@@ -294,18 +301,18 @@ def blend_interp(c0_sample, c1_sample, d0_sample, d1_sample, valid0, valid1, d_t
     h, w = d0.shape[-2:]
     if static_from is not None:
         m = static_from
-        mvalid, to1, to0, has_static = _a(m.valid)[0], _a(m.to1), _a(m.to0), True
+        mvalid, to1, to0, has_static = _u8(m.valid)[0], _a(m.to1), _a(m.to0), True
     elif static is not None:
         st = check_tensor(static, "static", 1, dtype_kind="bool")
         # a given mask: offsets of zero make the in-kernel test reduce to the mask
-        mvalid, has_static = _a(st)[0], True
+        mvalid, has_static = _u8(st)[0], True
         to1 = to0 = np.zeros((2, h, w), dtype=np.float32)
     else:
-        mvalid, to1, to0, has_static = _DUMMYB, _DUMMY3, _DUMMY3, False
+        mvalid, to1, to0, has_static = _DUMMYU8, _DUMMY3, _DUMMY3, False
     table, base = _table()
     endpoint = 1 if a == 0.0 else 2 if a == 1.0 else 0
     out_c, out_d = _empty(3, h, w), _empty(1, h, w)
-    blend_kernel(_a(c0), _a(c1), _a(d0)[0], _a(d1)[0], _a(v0)[0], _a(v1)[0],
+    blend_kernel(_a(c0), _a(c1), _a(d0)[0], _a(d1)[0], _u8(v0)[0], _u8(v1)[0],
                  _a(d_target)[0] if d_target is not None else _DUMMY2, d_target is not None,
                  mvalid, to1, to0, has_static, F32(a), F32(0.0 if a <= 0.5 else 1.0),
                  F32(t_d), F32(tb), *_bright_margins(tb), endpoint, table, base, out_c.numpy(),
@@ -1265,11 +1272,6 @@ def _f32cpu(t, dim=3) -> bool:
 def _boolcpu(t, shape) -> bool:
     return (isinstance(t, torch.Tensor) and t.device.type == "cpu" and t.dtype == torch.bool
             and tuple(t.shape) == tuple(shape))
-
-
-def _u8(t) -> np.ndarray:
-    """uint8 view of a bool tensor (the kernels' mask inputs; fgcli.kernels.gffe)."""
-    return _a(t).view(np.uint8)
 
 
 def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place=False):
