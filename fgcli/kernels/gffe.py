@@ -928,7 +928,8 @@ def hist_match_kernel(sel, ld0, ld1, xp, yp, depth0, eps, lim, idx, d0g, fb):
 
 @njit(**KERNEL)
 def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
-    """The trajectory (k, 4, H, W): P_0 = p; P_1 = P'_0 (p1 at the pixel, or prev[0] read
+    """The trajectory (k, 4, H, W): P_0 = p, which is out[0] (the caller unprojects into
+    it; the kernel writes planes 1.. only); P_1 = P'_0 (p1 at the pixel, or prev[0] read
     at idx when from_prev), P_i (i >= 2) = prev[i - 1] at idx where prev has it (i - 1 <
     nprev), else P'_0; pf (the fallback's point) where fb; each where the pixel is used
     (use, P'_0 a surface as p) and the sample is of p's kind, else p. dyn = the used
@@ -940,9 +941,6 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
     for pr in prange(h):
         y = np.int64(pr)
         ub = np.empty(w, dtype=np.float32)
-        for x in range(w):
-            for c in range(4):
-                out[0, c, y, x] = p[c, y, x]
         if from_prev:
             for x in range(w):
                 n = idx[y, x]

@@ -1095,20 +1095,26 @@ def unproject(depth, cam, px=None, py=None, size=None):
     s = _samples(depth, px, py) if _geom_ok(depth, size) else None
     if s is None:
         return G.unproject(depth, cam, px, py, size)
+    h, w = depth.shape[-2:]
+    out = _empty(4, h, w)
+    _unproject_into(depth, cam, s, size or (h, w), out.numpy())
+    return out
+
+
+def _unproject_into(depth, cam, s, size, o):
+    """unproject's kernels, writing into o ((4, h, w) float32, C-contiguous): s as
+    _samples returns them."""
     from fgcli.kernels.geom import unproject_kernel, unproject_sky_kernel
 
     h, w = depth.shape[-2:]
-    kx, ky, A, M = _unproject_coefs(cam, size or (h, w))
-    out = _empty(4, h, w)
+    kx, ky, A, M = _unproject_coefs(cam, size)
     d = _a(depth)[0]
     ss = np.empty((h, w), dtype=np.float32)
     nsky = np.empty(h, dtype=np.int64)
-    o = out.numpy()
     unproject_kernel(d, s[0], s[1], kx, ky, A, M, o, ss, nsky)
     sky = _sky_rows(nsky, ss)
     if sky is not None:
         unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o)
-    return out
 
 
 def reproject(depth, cam_from, cam_to, size, px=None, py=None):
@@ -1223,7 +1229,10 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
                                first_frame, lookup, match_tol, geom=GEOM)
     from fgcli.kernels.gffe import hist_match_kernel, hist_test_kernel, hist_traj_kernel
 
-    p = unproject(depth1, cam1)
+    # P_0 is unprojected straight into the trajectory (copying it there cost ~2 ms)
+    traj = _empty(k, 4, h, w)
+    p = traj[0]
+    _unproject_into(depth1, cam1, _grid_half(h, w), (h, w), p.numpy())
     xh, yh, _, pok = project(p, cam0, (h, w))
     xp, yp = _empty(h, w), _empty(h, w)
     use = np.empty((h, w), dtype=np.uint8)
@@ -1250,7 +1259,6 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     p1 = p if from_prev else unproject(d0g, cam0, xp, yp, (h, w))
     pf = unproject(depth1, cam0, xp, yp, (h, w)) if has_fb else p
     pv = _a(prev) if prev is not None else pa[None]
-    traj = _empty(k, 4, h, w)
     dyn = _empty(1, h, w, dtype=torch.bool)
     hist_traj_kernel(pa, use, idx, fb, p1.numpy(), from_prev, pf.numpy(), pv,
                      prev.shape[0] if prev is not None else 0, traj.numpy(), _u8(dyn)[0])
