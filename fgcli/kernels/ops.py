@@ -1248,10 +1248,12 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     if lookup == "match" and depth0 is not None:
         sel = torch.from_numpy(use.view(np.bool_)).reshape(-1).nonzero().squeeze(1)
         if sel.numel():
-            ld0 = torch.log(torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30)
-                            .clamp_min(1e-30)).view(-1)
-            ld1 = torch.log(torch.nan_to_num(depth1[0], nan=0.0, posinf=1e30).reshape(-1)[sel]
-                            .clamp_min(1e-30))
+            # (in place on the first op's result, and frame 1's at the selected pixels only:
+            # the same element-wise values as the reference's chain)
+            ld0 = torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min_(1e-30).log_()
+            ld0 = ld0.view(-1)
+            ld1 = torch.nan_to_num(depth1[0].reshape(-1)[sel], nan=0.0, posinf=1e30) \
+                .clamp_min_(1e-30).log_()
             hist_match_kernel(sel.numpy(), _a(ld0), _a(ld1), xp.numpy(), yp.numpy(), d0a,
                               F32(1e-7), F32(np.log1p(match_tol)), idx, d0g.numpy()[0], fb)
             has_fb = bool(fb.any())

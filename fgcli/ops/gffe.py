@@ -571,7 +571,7 @@ def _layer_fragments(layer, cam_from, cam_to, size, scale, geom=None):
     """Reproject a layer's valid fragments (grid cells `scale` full pixels wide) to cam_to."""
     h, w = layer["depth"].shape[-2:]
     cx, cy = _centres(h, w, scale, layer["depth"].device)
-    d = torch.where(layer["valid"], layer["depth"], torch.zeros_like(layer["depth"]))
+    d = torch.where(layer["valid"], layer["depth"], 0.0)  # (a scalar: no zero plane made)
     g = geom or TORCH_GEOM
     px, py, dn, ok = _reproject(g, d, cam_from, cam_to, size, cx, cy)
     return px, py, dn, ok & layer["valid"][0]
