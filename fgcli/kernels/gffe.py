@@ -1001,22 +1001,32 @@ def bits_hist_kernel(d, hist):
                 hist[c, np.float32(v).view(np.int32) >> 16] += 1
 
 
-@njit(cache=True, nogil=True)
-def bits_rank_kernel(d, top, rank):
+@njit(**KERNEL)
+def bits_rank_hist_kernel(d, top, lo):
+    """lo (nch, 65536) int64, zeroed: per chunk of d, the finite positive values whose top
+    16 bits are ``top``, counted by their low 16 bits (bits_rank scans their sum)."""
+    n = d.shape[0]
+    nch = lo.shape[0]
+    step = (n + nch - 1) // nch
+    for c in prange(nch):
+        a = c * step
+        b = min(n, a + step)
+        for i in range(a, b):
+            v = d[i]
+            bv = np.float32(v).view(np.int32)
+            if (v > ZERO) & (v < INF) & ((bv >> 16) == top):
+                lo[c, bv & 0xFFFF] += 1
+
+
+def bits_rank(d, top, rank, nch=4):
     """The float32 bits of the value of rank ``rank`` (0-based) among the finite positive
-    values of d whose top 16 bits are ``top``."""
-    lo = np.zeros(65536, dtype=np.int64)
-    for i in range(d.shape[0]):
-        v = d[i]
-        b = np.float32(v).view(np.int32)
-        if (v > ZERO) & (v < INF) & ((b >> 16) == top):
-            lo[b & 0xFFFF] += 1
-    acc = np.int64(0)
-    for j in range(65536):
-        acc += lo[j]
-        if acc > rank:
-            return np.int32((top << 16) | j)
-    return np.int32(-1)
+    values of d whose top 16 bits are ``top`` (the chunks counted in parallel: one serial
+    pass took 3.1 ms over a 1080p frame, the parallel one 1.9-2.4)."""
+    lo = np.zeros((nch, 65536), dtype=np.int64)
+    bits_rank_hist_kernel(d, np.int32(top), lo)
+    cum = np.cumsum(lo.sum(0))
+    j = int(np.searchsorted(cum, rank, side="right"))
+    return np.int32(-1) if j >= 65536 else np.int32((top << 16) | j)
 
 
 # ----------------------------------------------------------------------------- collection

@@ -671,7 +671,7 @@ def _cache_cold(families=None) -> bool:
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                     gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_test_kernel,
                     gffe.hist_match_kernel,
-                    gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_kernel,
+                    gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_hist_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
     try:
@@ -1577,12 +1577,12 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
 
 def median_depth(depth):
     """fgcli.ops.gffe.median_depth by an exact selection on the float32 bits
-    (bits_hist_kernel, bits_rank_kernel): the value of rank (n - 1) // 2 among the n finite
+    (bits_hist_kernel, bits_rank): the value of rank (n - 1) // 2 among the n finite
     positive depths, the lower median torch.nanmedian returns."""
     if not (isinstance(depth, torch.Tensor) and depth.device.type == "cpu"
             and depth.dtype == torch.float32 and depth.numel() > 0):
         return G.median_depth(depth)
-    from fgcli.kernels.gffe import bits_hist_kernel, bits_rank_kernel
+    from fgcli.kernels.gffe import bits_hist_kernel, bits_rank
 
     d = _a(depth).reshape(-1)
     hist = np.zeros((4, 32768), dtype=np.int64)
@@ -1594,7 +1594,7 @@ def median_depth(depth):
     r = (n - 1) // 2
     top = int(np.searchsorted(cum, r, side="right"))
     rank = r - (int(cum[top - 1]) if top > 0 else 0)
-    return float(np.int32(bits_rank_kernel(d, top, rank)).view(np.float32))
+    return float(np.int32(bits_rank(d, top, rank)).view(np.float32))
 
 
 def push_pull_fill(color, valid, depth=None, far_bias=0.1):
