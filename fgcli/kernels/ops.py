@@ -673,6 +673,7 @@ def _cache_cold(families=None) -> bool:
                     gffe.hist_match_kernel,
                     gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_hist_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
+                    gffe.max3_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
     try:
         import os
@@ -1495,7 +1496,7 @@ def collect_background(color1, depth1, static, cam1, prev_layers=None, cam_prev=
         return G.collect_background(color1, depth1, static, cam1, prev_layers, cam_prev,
                                     depth_tol, edge_guard, layer1_scale, geom=GEOM)
     from fgcli.kernels.gffe import (col_behind_kernel, col_case_kernel, col_init_kernel,
-                                    layer_fill_kernel)
+                                    layer_fill_kernel, max3_kernel)
 
     sc = float(layer1_scale)
     h2, w2 = G._half(H, W) if layer1_scale == 2 else (H, W)
@@ -1512,7 +1513,9 @@ def collect_background(color1, depth1, static, cam1, prev_layers=None, cam_prev=
     p0, p1 = prev_layers
     px, py, dn, fok = G._layer_fragments(p0, cam_prev, cam1, (H, W), 1.0, GEOM)
     c1, c2 = np.empty((H, W), dtype=np.uint8), np.empty((H, W), dtype=np.uint8)
-    col_case_kernel(_a(px), _a(py), _a(dn), _u8(fok), l0d, l0v, d1, tol, c1, c2)
+    far3 = np.empty((H, W), dtype=np.float32)
+    max3_kernel(l0d, far3)
+    col_case_kernel(_a(px), _a(py), _a(dn), _u8(fok), far3, l0v, d1, tol, c1, c2)
     pc = _a(p0["color"])
     src, dep = _splat_min(px, py, 1.0, dn, torch.from_numpy(c1.view(np.bool_)), H, W)
     layer_fill_kernel(src.numpy(), dep.numpy(), pc, l0c, l0d, l0v)
