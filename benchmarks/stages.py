@@ -1,10 +1,13 @@
 """Per-stage and per-frame cost of every pipeline at 1920x1080 on this machine.
 
     python benchmarks/stages.py [--size 1920x1080] [--repeat 7] [--pipelines mob-fgsr,...]
-                                [--backends torch,numba] [--json FILE]
+                                [--backends torch,numba] [--sequence] [--json FILE]
 
 Frames come from the bundled `blade` scene rendered at the benchmark size (fast movers,
-disocclusions: the expensive case). Prints median ms per stage and per generated frame,
+disocclusions: the expensive case). By default every generated frame comes from the same
+pair with no state (each as a sequence's first frame); `--sequence` generates from
+consecutive pairs with the run's state carried over, the steady state `fgen` reaches on a
+sequence (GFFE's history and background layers, FSR 3's memoised luminance). Prints median ms per stage and per generated frame,
 EXR read/write times separately, and every figure as a ratio to a reference measured in the
 same run (a plain copy of one frame's color+depth+mv tensors, copy_ms), so figures compare
 across machines. Both backends (torch reference ops, numba kernels) run interleaved in one
@@ -54,6 +57,13 @@ def main():
                     help="CUDA: run each pipeline once more under torch's sync debug mode and "
                          "list every host round-trip the stages make (file:line, stage); the "
                          "per-frame facts (motion test, scene-cut histogram) are counted apart")
+    ap.add_argument("--sequence", action="store_true",
+                    help="steady state: each repeat generates from the next pair of "
+                         "consecutive frames (repeat + 1 of them) with the run's state "
+                         "carried over, as `fgen` does on a sequence (GFFE's history and "
+                         "layers, FSR 3's memoised luminance); the first pair (empty "
+                         "history) is the warm-up. Default: one pair, no state (each frame "
+                         "as a sequence's first)")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write the figures as JSON: {copy_ms, pipelines: {name: {mode: "
                          "{ms_per_frame, x_copy, stages, backends: {torch: ..., numba: ...}}}}}")
@@ -63,7 +73,7 @@ def main():
     from fgcli import pipeline as pl
     from fgcli.io.frames import read_frame, write_frame
     from fgcli.pipeline import Timings, run_stages
-    from fgcli.runner import make_ctx
+    from fgcli.runner import RunState, make_ctx
     from fgcli.synth import load_scene, render
 
     from fgcli.runner import check_device
@@ -77,8 +87,10 @@ def main():
     # render at 1/4 size and upscale (nearest; vectors x4): same motion structure, fast
     scene = load_scene(args.scene, size=(W // 4, H // 4))
     t0 = time.perf_counter()
-    small = [render(scene, 3.0, 2.0, spp=2), render(scene, 4.0, 3.0, spp=2)]
-    render_ms = (time.perf_counter() - t0) * 500
+    times = ([(2.0 + 0.5 * i, 1.0 + 0.5 * i) for i in range(args.repeat + 2)] if args.sequence
+             else [(3.0, 2.0), (4.0, 3.0)])
+    small = [render(scene, t, tp, spp=2) for t, tp in times]
+    render_ms = (time.perf_counter() - t0) * 1000 / len(small)
 
     def up(f):
         def u(x, k=1.0):
@@ -86,14 +98,16 @@ def main():
         return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
                          normal=None, albedo=None, roughness=None, alpha=None)
 
-    f0, f1 = (up(f) for f in small)
-    host1 = f1
+    seq = [up(f).replace(number=i) for i, f in enumerate(small)]  # (GFFE tracks once per
+    host1 = seq[1]                                                # rendered frame number)
     if cuda:
-        f0, f1 = f0.to(dev), f1.to(dev)
+        seq = [f.to(dev) for f in seq]
         torch.cuda.synchronize()
+    f0, f1 = seq[0], seq[1]
     where = (f"{torch.cuda.get_device_name(dev)}" if cuda else
              f"{torch.get_num_threads()} threads")
-    print(f"# {W}x{H}, torch {torch.__version__}, {where}; frames from "
+    print(f"# {W}x{H}, torch {torch.__version__}, {where}; "
+          f"{'a sequence (state carried), ' if args.sequence else ''}frames from "
           f"{os.path.basename(args.scene)} rendered at 1/4 size and upscaled "
           f"(render {render_ms:.0f} ms/frame, not counted)")
 
@@ -160,7 +174,8 @@ def main():
     from fgcli.kernels import resolve
 
     backends = list(dict.fromkeys(resolve(b, dev) for b in backends))  # CUDA: torch only
-    result = {"size": [W, H], "threads": torch.get_num_threads(), "torch": torch.__version__,
+    result = {"size": [W, H], "sequence": bool(args.sequence),
+              "threads": torch.get_num_threads(), "torch": torch.__version__,
               "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
               "kernel_load_ms": {"first_process": loads[0], "cached": loads[1],
@@ -183,11 +198,16 @@ def main():
                     # interleaved: torch, numba, torch, ... so load changes hit both alike;
                     # the first run of each backend (numba: loading/compiling kernels) is
                     # the warm-up Timings.median drops
+                    states = {b: RunState() for b in backends}
                     for k in range(args.repeat + 1):
                         for b in backends:
-                            ctx = make_ctx(f0, f1, 0.5, mode)
+                            if args.sequence:  # the next pair, the state carried over
+                                ctx = make_ctx(seq[k], seq[k + 1], 0.5, mode)
+                                ctx["state"] = states[b]
+                            else:
+                                ctx = make_ctx(f0, f1, 0.5, mode)
+                                ctx["state"] = None
                             ctx["prev_time"] = 0.0
-                            ctx["state"] = None
                             ctx["backend"] = b
                             t0 = time.perf_counter()
                             run_stages(stages, ctx, tms[b], sync=sync)
