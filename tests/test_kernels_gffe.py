@@ -120,6 +120,26 @@ def test_unproject_is_bit_identical(h, w):
                    G.unproject(d, cam, cx, cy, (2 * h, 2 * w)))
 
 
+def test_sky_passes_skip_spans_without_sky():
+    """The sky passes work in spans of SKY_SPAN pixels and skip those with no sky: wide
+    rows whose sky lies in a few runs (across span boundaries, at the row's end, a lone
+    pixel), the rest surfaces; unproject and reproject against the reference."""
+    from fgcli.kernels.geom import SKY_SPAN
+
+    h, w = 6, 3 * SKY_SPAN + 17
+    rng = np.random.default_rng(5)
+    d = torch.rand(1, h, w, generator=torch.Generator().manual_seed(5)) * 20 + 1
+    d[0, 1, SKY_SPAN - 3:SKY_SPAN + 5] = INF  # across a span boundary
+    d[0, 2, w - 4:] = INF  # the last, partial span
+    d[0, 3, 2 * SKY_SPAN + 7] = INF  # one pixel
+    d[0, 4, :] = INF  # a whole sky row
+    for trial in range(3):
+        cam_a, cam_b = random_camera(rng, w / h), random_camera(rng, w / h)
+        bits_equal(f"unproject {trial}", K.unproject(d, cam_a), G.unproject(d, cam_a))
+        same_tree(f"reproject {trial}", K.reproject(d, cam_a, cam_b, (h, w)),
+                  G.project(G.unproject(d, cam_a), cam_b, (h, w)))
+
+
 @pytest.mark.parametrize("h,w", SIZES)
 def test_reproject_is_project_of_unproject(h, w):
     """The fused reproject (positions kept in row buffers) gives project(unproject(...))

@@ -30,6 +30,7 @@ from fgcli.kernels._common import INF, INLINE, KERNEL
 TINY = np.float32(1e-30)  # unproject's guards (torch compares in float32)
 EPS_W = np.float32(1e-12)  # project's clip-w threshold
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
+SKY_SPAN = 64  # the sky passes skip runs of this many pixels that hold no sky
 ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
 
@@ -157,25 +158,33 @@ def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out):
         nyr = np.empty(w, dtype=np.float32)
         _ndc_row(px, py, y, kx, ky, nxr, nyr)
         nr = nrm[r]
-        # directions into row buffers, then merged: the merge in the same loop (reading
-        # and writing out) stops it vectorising (3x slower)
-        t0 = np.empty(w, dtype=np.float32)
-        t1 = np.empty(w, dtype=np.float32)
-        t2 = np.empty(w, dtype=np.float32)
-        for x in range(w):
-            a, b, c = _sky_px(nxr[x], nyr[x], nr[x], A, M)
-            t0[x] = a
-            t1[x] = b
-            t2[x] = c
+        # directions into span buffers, then merged: the merge in the same loop (reading
+        # and writing out) stops it vectorising (3x slower); spans without sky are skipped
+        t0 = np.empty(SKY_SPAN, dtype=np.float32)
+        t1 = np.empty(SKY_SPAN, dtype=np.float32)
+        t2 = np.empty(SKY_SPAN, dtype=np.float32)
         dr = depth[y]
         o0 = out[0, y]
         o1 = out[1, y]
         o2 = out[2, y]
-        for x in range(w):
-            sky = dr[x] == INF
-            o0[x] = t0[x] if sky else o0[x]
-            o1[x] = t1[x] if sky else o1[x]
-            o2[x] = t2[x] if sky else o2[x]
+        for xs in range((w + SKY_SPAN - 1) // SKY_SPAN):
+            xa = np.int64(xs) * SKY_SPAN
+            n = min(SKY_SPAN, w - xa)
+            m = 0
+            for i in range(n):
+                m += np.int64(dr[xa + i] == INF)
+            if m == 0:
+                continue
+            for i in range(n):
+                a, b, c = _sky_px(nxr[xa + i], nyr[xa + i], nr[xa + i], A, M)
+                t0[i] = a
+                t1[i] = b
+                t2[i] = c
+            for i in range(n):
+                sky = dr[xa + i] == INF
+                o0[xa + i] = t0[i] if sky else o0[xa + i]
+                o1[xa + i] = t1[i] if sky else o1[xa + i]
+                o2[xa + i] = t2[i] if sky else o2[xa + i]
 
 
 # ----------------------------------------------------------------------------- project
@@ -277,23 +286,31 @@ def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx
         nyr = np.empty(w, dtype=np.float32)
         _ndc_row(px, py, y, kx, ky, nxr, nyr)
         nr = nrm[r]
-        t0 = np.empty(w, dtype=np.float32)
-        t1 = np.empty(w, dtype=np.float32)
-        t2 = np.empty(w, dtype=np.float32)
-        for x in range(w):
-            a, b, c = _sky_px(nxr[x], nyr[x], nr[x], A, M)
-            t0[x] = a
-            t1[x] = b
-            t2[x] = c
+        t0 = np.empty(SKY_SPAN, dtype=np.float32)
+        t1 = np.empty(SKY_SPAN, dtype=np.float32)
+        t2 = np.empty(SKY_SPAN, dtype=np.float32)
         dr = depth[y]
         rx = opx[y]
         ry = opy[y]
         rd = od[y]
         ro = ook[y]
-        for x in range(w):
-            sky = dr[x] == INF
-            qx, qy, d, o = _project_px(t0[x], t1[x], t2[x], ZERO, V, P, hw, hh)
-            rx[x] = qx if sky else rx[x]
-            ry[x] = qy if sky else ry[x]
-            rd[x] = d if sky else rd[x]
-            ro[x] = o if sky else ro[x]
+        for xs in range((w + SKY_SPAN - 1) // SKY_SPAN):  # (spans without sky skipped)
+            xa = np.int64(xs) * SKY_SPAN
+            n = min(SKY_SPAN, w - xa)
+            m = 0
+            for i in range(n):
+                m += np.int64(dr[xa + i] == INF)
+            if m == 0:
+                continue
+            for i in range(n):
+                a, b, c = _sky_px(nxr[xa + i], nyr[xa + i], nr[xa + i], A, M)
+                t0[i] = a
+                t1[i] = b
+                t2[i] = c
+            for i in range(n):
+                sky = dr[xa + i] == INF
+                qx, qy, d, o = _project_px(t0[i], t1[i], t2[i], ZERO, V, P, hw, hh)
+                rx[xa + i] = qx if sky else rx[xa + i]
+                ry[xa + i] = qy if sky else ry[xa + i]
+                rd[xa + i] = d if sky else rd[xa + i]
+                ro[xa + i] = o if sky else ro[xa + i]
