@@ -45,21 +45,8 @@ def _enc(v, table, base):
 
 
 @njit(**INLINE)
-def _agree(x, y, t):
-    return x == y or abs(x - y) <= min(x, y) * t
-
-
-@njit(**INLINE)
-def lerp(a, b, w):
-    """torch.lerp's float32 formula (vectorised CPU kernel: one FMA)."""
-    if abs(w) < F32(0.5):
-        return fma(w, b - a, a)
-    return fma(w - F32(1.0), b - a, b)
-
-
-@njit(**INLINE)
 def _agree_i(x, y, t):
-    """_agree as an int32 flag (0 / 1)."""
+    """fgcli.ops.blend._agree (x == y or |x - y| <= min(x, y) t) as an int32 flag (0 / 1)."""
     return np.int32((x == y) | (abs(x - y) <= min(x, y) * t))
 
 

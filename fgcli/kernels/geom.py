@@ -147,6 +147,23 @@ def unproject_kernel(depth, px, py, kx, ky, A, M, out, ss, nsky):
         nsky[y] = n
 
 
+@njit(**INLINE)
+def _sky_span(dr, nxr, nyr, nr, xa, n, A, M, t0, t1, t2):
+    """The sky passes' span of n pixels from column xa: its sky pixels (depth row dr) are
+    counted, and when there are any the directions of all n (_sky_px, nr their norms) go
+    to t0, t1, t2 for the caller's merge. Returns the count (0: the span is skipped)."""
+    m = 0
+    for i in range(n):
+        m += np.int64(dr[xa + i] == INF)
+    if m != 0:
+        for i in range(n):
+            a, b, c = _sky_px(nxr[xa + i], nyr[xa + i], nr[xa + i], A, M)
+            t0[i] = a
+            t1[i] = b
+            t2[i] = c
+    return m
+
+
 @njit(**KERNEL)
 def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out):
     """unproject_kernel's second pass: the sky pixels of rows y0 .. y0 + len(nrm) - 1, nrm
@@ -170,16 +187,8 @@ def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out):
         for xs in range((w + SKY_SPAN - 1) // SKY_SPAN):
             xa = np.int64(xs) * SKY_SPAN
             n = min(SKY_SPAN, w - xa)
-            m = 0
-            for i in range(n):
-                m += np.int64(dr[xa + i] == INF)
-            if m == 0:
+            if _sky_span(dr, nxr, nyr, nr, xa, n, A, M, t0, t1, t2) == 0:
                 continue
-            for i in range(n):
-                a, b, c = _sky_px(nxr[xa + i], nyr[xa + i], nr[xa + i], A, M)
-                t0[i] = a
-                t1[i] = b
-                t2[i] = c
             for i in range(n):
                 sky = dr[xa + i] == INF
                 o0[xa + i] = t0[i] if sky else o0[xa + i]
@@ -297,16 +306,8 @@ def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx
         for xs in range((w + SKY_SPAN - 1) // SKY_SPAN):  # (spans without sky skipped)
             xa = np.int64(xs) * SKY_SPAN
             n = min(SKY_SPAN, w - xa)
-            m = 0
-            for i in range(n):
-                m += np.int64(dr[xa + i] == INF)
-            if m == 0:
+            if _sky_span(dr, nxr, nyr, nr, xa, n, A, M, t0, t1, t2) == 0:
                 continue
-            for i in range(n):
-                a, b, c = _sky_px(nxr[xa + i], nyr[xa + i], nr[xa + i], A, M)
-                t0[i] = a
-                t1[i] = b
-                t2[i] = c
             for i in range(n):
                 sky = dr[xa + i] == INF
                 qx, qy, d, o = _project_px(t0[i], t1[i], t2[i], ZERO, V, P, hw, hh)

@@ -986,9 +986,10 @@ def hist_traj_kernel(p, use, idx, fb, p1, from_prev, pf, prev, nprev, out, dyn):
 # the bucket that holds the rank.
 
 @njit(**KERNEL)
-def bits_hist_kernel(d, hist):
-    """hist (nch, 32768) int64: per chunk of d (flat float32), the finite positive values
-    counted by their top 16 bits."""
+def bits_count_kernel(d, top, shift, mask, hist):
+    """hist (nch, nbins) int64, zeroed: per chunk of d (flat float32), the finite positive
+    values counted by (bits >> shift) & mask; with top >= 0 only those whose top 16 bits
+    are ``top`` (the second pass)."""
     n = d.shape[0]
     nch = hist.shape[0]
     step = (n + nch - 1) // nch
@@ -997,25 +998,16 @@ def bits_hist_kernel(d, hist):
         b = min(n, a + step)
         for i in range(a, b):
             v = d[i]
-            if (v > ZERO) & (v < INF):
-                hist[c, np.float32(v).view(np.int32) >> 16] += 1
-
-
-@njit(**KERNEL)
-def bits_rank_hist_kernel(d, top, lo):
-    """lo (nch, 65536) int64, zeroed: per chunk of d, the finite positive values whose top
-    16 bits are ``top``, counted by their low 16 bits (bits_rank scans their sum)."""
-    n = d.shape[0]
-    nch = lo.shape[0]
-    step = (n + nch - 1) // nch
-    for c in prange(nch):
-        a = c * step
-        b = min(n, a + step)
-        for i in range(a, b):
-            v = d[i]
             bv = np.float32(v).view(np.int32)
-            if (v > ZERO) & (v < INF) & ((bv >> 16) == top):
-                lo[c, bv & 0xFFFF] += 1
+            if (v > ZERO) & (v < INF) & ((top < 0) | ((bv >> 16) == top)):
+                hist[c, (bv >> shift) & mask] += 1
+
+
+def bits_hist(d, nch=4):
+    """(32768,) int64: the finite positive values of d counted by their top 16 bits."""
+    hist = np.zeros((nch, 32768), dtype=np.int64)
+    bits_count_kernel(d, np.int32(-1), np.int32(16), np.int32(0x7FFF), hist)
+    return hist.sum(0)
 
 
 def bits_rank(d, top, rank, nch=4):
@@ -1023,7 +1015,7 @@ def bits_rank(d, top, rank, nch=4):
     values of d whose top 16 bits are ``top`` (the chunks counted in parallel: one serial
     pass took 3.1 ms over a 1080p frame, the parallel one 1.9-2.4)."""
     lo = np.zeros((nch, 65536), dtype=np.int64)
-    bits_rank_hist_kernel(d, np.int32(top), lo)
+    bits_count_kernel(d, np.int32(top), np.int32(0), np.int32(0xFFFF), lo)
     cum = np.cumsum(lo.sum(0))
     j = int(np.searchsorted(cum, rank, side="right"))
     return np.int32(-1) if j >= 65536 else np.int32((top << 16) | j)

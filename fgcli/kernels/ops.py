@@ -671,7 +671,7 @@ def _cache_cold(families=None) -> bool:
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                     gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_test_kernel,
                     gffe.hist_match_kernel,
-                    gffe.hist_traj_kernel, gffe.bits_hist_kernel, gffe.bits_rank_hist_kernel,
+                    gffe.hist_traj_kernel, gffe.bits_count_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.max3_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
@@ -1580,17 +1580,15 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
 
 def median_depth(depth):
     """fgcli.ops.gffe.median_depth by an exact selection on the float32 bits
-    (bits_hist_kernel, bits_rank): the value of rank (n - 1) // 2 among the n finite
+    (bits_hist, bits_rank): the value of rank (n - 1) // 2 among the n finite
     positive depths, the lower median torch.nanmedian returns."""
     if not (isinstance(depth, torch.Tensor) and depth.device.type == "cpu"
             and depth.dtype == torch.float32 and depth.numel() > 0):
         return G.median_depth(depth)
-    from fgcli.kernels.gffe import bits_hist_kernel, bits_rank
+    from fgcli.kernels.gffe import bits_hist, bits_rank
 
     d = _a(depth).reshape(-1)
-    hist = np.zeros((4, 32768), dtype=np.int64)
-    bits_hist_kernel(d, hist)
-    cum = np.cumsum(hist.sum(0))
+    cum = np.cumsum(bits_hist(d))
     n = int(cum[-1])
     if n == 0:
         return float("nan")
