@@ -23,6 +23,7 @@ from fgcli.runner import make_ctx
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INF = math.inf
+NAN = math.nan
 
 
 def _texture(h, w, seed=0):
@@ -165,6 +166,64 @@ def test_vector_median_removes_an_outlier():
     f[:, 2, 2] = 40.0
     out = fsr3._vector_median3(f)
     assert torch.equal(out, torch.ones(2, 5, 5))
+
+
+def test_smooth_block_flow_votes_down_an_outlier_and_keeps_uniform_motion():
+    f = torch.zeros(2, 7, 9)
+    f[0] = 6.0
+    f[1] = -2.0
+    s = fsr3.smooth_block_flow(f)
+    assert torch.allclose(s, f, atol=1e-5)  # uniform motion stays
+    g = f.clone()
+    g[:, 3, 4] = torch.tensor([-6.0, 2.0])  # opposes all its neighbours: no weight
+    s = fsr3.smooth_block_flow(g)
+    assert torch.allclose(s[:, 3, 4], f[:, 3, 4], atol=1e-4)
+    # vectors of 1 px or less and over 512 px have no weight; none moving -> zero
+    z = torch.full((2, 4, 4), 0.5)
+    assert torch.equal(fsr3.smooth_block_flow(z), torch.zeros(2, 4, 4))
+    h = torch.tensor([[[NAN, INF, -INF, 3.0]], [[1.0, 2.0, 3.0, 4.0]]])
+    assert bool(torch.isfinite(fsr3.smooth_block_flow(h)).all())
+
+
+@pytest.mark.parametrize("smooth", [True, False])
+def test_flow_vector_field_on_the_block_grid(smooth):
+    """field=block (the FidelityFX SDK's optical-flow field): a uniform block flow of
+    (16, -8) px lands on the texels (1 - alpha) v / 8 away, the priority is the SDK's
+    magnitude rule, the sampled per-pixel vectors are the flow where the field is written;
+    short vectors (<= 1 px) write nothing; hard cases stay finite."""
+    h, w = 64, 96
+    c1 = _texture(h, w, 3)
+    c0 = torch.roll(c1, shifts=(-8, 16), dims=(1, 2))  # frame 1 at p shows frame 0 at p + v
+    f = torch.zeros(2, 8, 12)
+    f[0], f[1] = 16.0, -8.0
+    field = fsr3.flow_vector_field(c0, c1, f, 0.5, 8, smooth=smooth)
+    assert field.shape == (2, 8, 12)
+    vec, prio, valid = fsr3.unpack_vector_field(field)
+    # sources move by (1, -0.5) texels: rows 0..6 written from below, row 7 only by its
+    # own source's lower tap (none), column 0 by no source
+    assert bool(valid[0, :7, 1:].all()) and not bool(valid[0, :, 0].any())
+    vel = math.hypot(16.0, 8.0)
+    hi = int(min(vel / (0.05 * math.hypot(w, h)), 1.0) * 1023)
+    assert int(((prio >> 5) & 1023)[valid].max()) == hi
+    assert torch.equal(vec[0][valid[0]], torch.full((int(valid.sum()),), 16.0))
+    lo = (prio & 31)[valid]  # the rolled frames agree: 31, or 0 where p + v is off-screen
+    assert bool(((lo == 31) | (lo == 0)).all()) and float((lo == 31).float().mean()) > 0.7
+    of = fsr3.sample_flow_field(field, h, w, 8)
+    assert of.shape == (2, h, w)
+    assert torch.equal(of[:, 8:48, 16:], torch.stack([torch.full((40, 80), 16.0),
+                                                        torch.full((40, 80), -8.0)]))
+    # 1 px or less: no entries, zero vectors
+    small = torch.full((2, 8, 12), 0.6)
+    assert int(fsr3.flow_vector_field(c0, c1, small, 0.5, 8, smooth=smooth).abs().sum()) == 0
+    # hard cases
+    bad = f.clone()
+    bad[0, 2, 3], bad[1, 4, 5], bad[0, 0, 0] = NAN, INF, -1e9
+    cb = c1.clone()
+    cb[:, 10, 10], cb[:, 20, 20] = NAN, INF
+    fb = fsr3.flow_vector_field(cb, cb, bad, 0.25, 8, smooth=smooth)
+    assert bool(torch.isfinite(fsr3.sample_flow_field(fb, h, w, 8)).all())
+    with pytest.raises(ValueError, match="flow: expected"):
+        fsr3.flow_vector_field(c0, c1, torch.zeros(2, 8, 11), 0.5, 8)
 
 
 def test_dis_flow_shapes_and_shift():
@@ -443,3 +502,26 @@ def test_flow_is_computed_once_per_pair_with_the_same_result():
                for i in (0, 1) for a in (0.25, 0.75)]
     assert all(torch.equal(x, y) for x, y in zip(got, ref))
     assert len(calls) == 3  # frames 0, 1 and 2: each luminance once, each pair's flow once
+
+
+def test_block_field_option_same_on_both_backends():
+    """fsr3-interp:field=block (the SDK's block-grid optical-flow field) runs end to end
+    and gives the same frame on the numba and torch backends; it differs from the
+    default per-pixel field."""
+    pytest.importorskip("numba")
+    f = _frames("blade", 2)
+    outs = {}
+    with torch.inference_mode():
+        for name in ("fsr3-interp:field=block", "fsr3-interp"):
+            stages = pl.load(name).build("interp")
+            for be in ("torch", "numba"):
+                ctx = dict(make_ctx(f[0], f[1], 0.5, "interp"), state=None, prev_time=0.0,
+                           backend=be)
+                outs[name, be] = pl.run_stages(stages, ctx)["color"]
+    blk = outs["fsr3-interp:field=block", "torch"]
+    assert bool(torch.isfinite(blk).all())
+    if torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX"):  # FMA builds
+        assert torch.equal(blk, outs["fsr3-interp:field=block", "numba"])
+    else:
+        assert torch.allclose(blk, outs["fsr3-interp:field=block", "numba"], atol=1e-4)
+    assert not torch.equal(blk, outs["fsr3-interp", "torch"])

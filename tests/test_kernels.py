@@ -727,6 +727,38 @@ def test_unpack_vector_field():
     assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
 
 
+@pytest.mark.parametrize("h,w,block", [(1080, 1920, 8), (37, 53, 8), (9, 17, 8), (1, 1, 8),
+                                       (5, 3, 1), (64, 40, 4)])
+def test_sample_flow_field(h, w, block):
+    """fsr3-interp:field=block's per-pixel sampling of the block field against the
+    reference: written and unwritten texels, every binary16 pattern class (NaN, inf,
+    subnormal, -0.0), texels off the grid at the edges, grids of one texel."""
+    from fgcli.ops import fsr3
+
+    fh, fw = -(-h // block), -(-w // block)
+    g = torch.Generator().manual_seed(h + 7 * w + block)
+    bits = torch.randint(0, 65536, (2, fh, fw), generator=g)
+    special = torch.tensor([0x7E00, 0x7C00, 0x0001, 0x8000])
+    n = min(4, bits.numel())
+    bits.view(-1)[:n] = special[:n]
+    prio = torch.randint(0, 65536, (1, fh, fw), generator=g)
+    prio.view(-1)[::3] = 0  # unwritten
+    field = (prio << 16) | bits
+    k = K.sample_flow_field(field, h, w, block)
+    r = fsr3.sample_flow_field(field, h, w, block)
+    same("sample_flow_field", k, r)
+    assert bool(torch.isfinite(k).all())
+    # a valid, smooth field: the interior is the bilinear mean of the texels
+    v = torch.randn(2, fh, fw, generator=g) * 4
+    one = fsr3.pack_entries(True, torch.full((fh * fw,), 5), torch.zeros(fh * fw, dtype=torch.int64),
+                            v.reshape(2, -1)[0]).view(1, fh, fw)
+    two = fsr3.pack_entries(True, torch.full((fh * fw,), 5), torch.zeros(fh * fw, dtype=torch.int64),
+                            v.reshape(2, -1)[1]).view(1, fh, fw)
+    field = torch.cat([one, two])
+    same("sample_flow_field valid", K.sample_flow_field(field, h, w, block),
+         fsr3.sample_flow_field(field, h, w, block))
+
+
 @pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 5), (5, 1), (1, 1), (3, 3)])
 def test_pyramid_level_and_fills(h, w):
     """The mip level kernel against avg_pool2d(ceil_mode) bit for bit (odd edges, zeros,

@@ -56,6 +56,7 @@ KERNEL_OPS = {
     "depth_priority": "fgcli.ops.fsr3",
     "avg_pool2": "fgcli.ops.pyramid",
     "unpack_vector_field": "fgcli.ops.fsr3",
+    "sample_flow_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",
     "scene_change_score_tensor": "fgcli.ops.scene",
 }

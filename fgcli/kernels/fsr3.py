@@ -263,3 +263,32 @@ def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
                                                yf, wm1, hm1, w32))
                 z = z0 if z0 < z1 else z1
             out[y, x] = z
+
+
+@njit(**KERNEL)
+def sample_flow_kernel(vec, ya, yb, wy0, wy1, xa, xb, wx0, wx1, out):
+    """sample_flow_field per pixel: the bilinear mean of the unpacked block field vec
+    (2, fh, fw) float32 at each pixel, from the per-row / per-column taps and weights of
+    flow_field_coords (int64 indices, float32 weights, 0 off the grid); the reference's
+    float32 products and sums in its order -> out (2, h, w)."""
+    h = ya.shape[0]
+    w = xa.shape[0]
+    for py in prange(h):
+        y = np.int64(py)
+        r0 = ya[y]
+        r1 = yb[y]
+        a0 = wy0[y]
+        a1 = wy1[y]
+        for k in range(2):
+            for x in range(w):
+                c0 = xa[x]
+                c1 = xb[x]
+                w00 = a0 * wx0[x]
+                w10 = a0 * wx1[x]
+                w01 = a1 * wx0[x]
+                w11 = a1 * wx1[x]
+                sw = ((w00 + w10) + w01) + w11
+                acc = ((vec[k, r0, c0] * w00 + vec[k, r0, c1] * w10) + vec[k, r1, c0] * w01) \
+                    + vec[k, r1, c1] * w11
+                d = sw if sw >= F32(1e-30) else F32(1e-30)
+                out[k, y, x] = acc / d if sw > F32(0.0) else F32(0.0)

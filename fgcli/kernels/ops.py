@@ -938,6 +938,26 @@ def unpack_vector_field(field):
     return vec, prio, valid
 
 
+def sample_flow_field(field, h, w, block=8):
+    """fgcli.ops.fsr3.sample_flow_field: the block field unpacked and the per-axis taps by
+    the reference's own torch code (block resolution, 1-D), the per-pixel mean by the
+    numba kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (isinstance(field, torch.Tensor) and field.device.type == "cpu" and
+            field.dim() == 3 and field.shape[0] == 2 and h > 0 and w > 0):
+        return FS.sample_flow_field(field, h, w, block)
+    from fgcli.kernels.fsr3 import sample_flow_kernel
+
+    vec, _, _ = FS.unpack_vector_field(field)
+    fh, fw = vec.shape[-2:]
+    ys = [_a(t) for t in FS.flow_field_coords(h, fh, block)]
+    xs = [_a(t) for t in FS.flow_field_coords(w, fw, block)]
+    out = _empty(2, h, w)
+    sample_flow_kernel(_a(vec), *ys, *xs, out.numpy())
+    return out
+
+
 def _padded_base(field):
     """(buffer, 1) when field is the interior view of a padded (2, H + 2, W + 2) buffer
     (vector_field's result: read in place, no contiguous copy), else (None, 0)."""

@@ -459,6 +459,176 @@ def dis_flow(lum0: torch.Tensor, lum1: torch.Tensor, preset: str = "medium") -> 
     return sanitize_mv(torch.nan_to_num(out, nan=0.0))
 
 
+# ----------------------------------------------------------------------------- optical-flow field
+# FidelityFX SDK, ffx_frameinterpolation_optical_flow_vector_field.h: the optical-flow vector
+# field is built at the flow's own resolution (one texel per 8x8 block), not per pixel, and
+# the interpolation pass samples it bilinearly (SampleOpticalFlowMotionVectorField).
+
+FLOW_SMOOTH_EPS = 1e-3  # FFX_FRAMEINTERPOLATION_EPSILON
+
+
+def _flow_neighbours(x: torch.Tensor):
+    """The 3x3 neighbourhood of every texel of x (C, H, W), y-major from (-1, -1); texels
+    outside the grid read 0 (an out-of-bounds texture load)."""
+    h, w = x.shape[-2:]
+    xp = F.pad(x, (1, 1, 1, 1))
+    return [xp[:, dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)]
+
+
+def smooth_block_flow(flow: torch.Tensor) -> torch.Tensor:
+    """The SDK's 3x3 filter of the block flow before its vector field
+    (computeOpticalFlowVectorField): weights ``l = max(0, 512 - |v|) * (|v| > 1)``
+    (|v| in px), their weighted mean ``m``, then the mean of the nine vectors weighted by
+    ``max(0, dot(m, v))^1.25 * l``; the sum itself (no division) where those weights add
+    up to FLOW_SMOOTH_EPS or less, as the SDK does. A vector opposing its neighbours'
+    mean gets no weight, so lone outlier blocks are voted down. fgen takes the dot
+    product in px (the SDK in UV units, which makes its EPS test depend on the
+    resolution: vectors of a few pixels at 1080p would sum below it and vanish).
+    (2, H, W) -> (2, H, W) float32."""
+    flow = check_tensor(flow, "flow", 2, allow_batch=False)
+    f = sanitize_mv(flow)
+    ln = _length(f, keepdim=True)
+    lf = (512.0 - ln).clamp(min=0.0) * (ln > 1.0)
+    vs = _flow_neighbours(f)
+    ls = _flow_neighbours(lf)
+    acc = torch.zeros_like(f)
+    sw = torch.zeros_like(lf)
+    for v, l in zip(vs, ls):
+        acc = acc + v * l
+        sw = sw + l
+    m = torch.where(sw > 0.0, acc / sw.clamp(min=1e-30), torch.zeros_like(acc))
+    acc = torch.zeros_like(f)
+    sw = torch.zeros_like(lf)
+    for v, l in zip(vs, ls):
+        d = (m * v).sum(dim=0, keepdim=True).clamp(min=0.0)
+        wt = d.pow(1.25) * l
+        acc = acc + v * wt
+        sw = sw + wt
+    return torch.where(sw > FLOW_SMOOTH_EPS, acc / sw.clamp(min=1e-30), acc)
+
+
+def _sample_points(img: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples of img (C, H, W) at index positions x, y (N,) (finite), border
+    clamp (a clamped texture sampler), the taps sanitised (sanitize_values) before they
+    are weighted: (C, N)."""
+    h, w = img.shape[-2:]
+    x = x.clamp(0.0, w - 1.0)
+    y = y.clamp(0.0, h - 1.0)
+    x0 = torch.floor(x)
+    y0 = torch.floor(y)
+    fx = x - x0
+    fy = y - y0
+    xa = x0.to(torch.int64)
+    ya = y0.to(torch.int64)
+    xb = (xa + 1).clamp(max=w - 1)
+    yb = (ya + 1).clamp(max=h - 1)
+    flat = img.reshape(img.shape[0], -1)
+
+    def g(yi, xi):
+        return sanitize_values(flat.index_select(1, yi * w + xi))
+
+    top = g(ya, xa) * (1.0 - fx) + g(ya, xb) * fx
+    bot = g(yb, xa) * (1.0 - fx) + g(yb, xb) * fx
+    return top * (1.0 - fy) + bot * fy
+
+
+def flow_vector_field(color0: torch.Tensor, color1: torch.Tensor, flow: torch.Tensor,
+                      alpha: float = 0.5, block: int = 8, smooth: bool = True,
+                      tap_threshold: float = TAP_THRESHOLD) -> torch.Tensor:
+    """FSR 3's OpticalFlowVectorField pass at the flow's resolution (the SDK's; one texel
+    per block of ``block`` x ``block`` pixels).
+
+    Texel b (grid index) stands for the block centre ``c = block * b + (block - 1) / 2``
+    (px). With its vector v (px, frame 1 -> frame 0; smooth_block_flow first when
+    ``smooth``) it writes the packed entry (primary, hi, lo) with an atomic max into the
+    bilinear footprint (taps of weight > tap_threshold, as the game field) of
+    ``b + (1 - alpha) v / block`` on the grid. hi is the SDK's magnitude priority
+    ``(|v| > 1) * floor(clamp(|v| / |0.05 (W, H)|, 0, 1) * 1023)`` (vectors of 1 px or
+    less write nothing), lo the colour agreement of frame 0's colour at c + v and frame
+    1's at c (bilinear, luminance of the samples; 0 when c + v is off-screen). The SDK
+    samples the previous frame at c and the current one at c + v, which is backwards for
+    a frame-1 -> frame-0 vector; fgen samples as the game field does.
+
+    Args:
+        color0, color1: (3, H, W). flow: (2, ceil(H / block), ceil(W / block)) px.
+
+    Returns:
+        (2, fh, fw) int64 packed entries (x, y); 0 = not written (unpack_vector_field).
+    """
+    color0 = check_tensor(color0, "color0", 3, allow_batch=False)
+    color1 = check_tensor(color1, "color1", 3, allow_batch=False)
+    flow = check_tensor(flow, "flow", 2, allow_batch=False)
+    check_same(color0, "color0", (color1, "color1"))
+    a = check_alpha(alpha)
+    if int(block) < 1:
+        raise ValueError(f"block: expected >= 1, got {block}")
+    B = int(block)
+    h, w = color1.shape[-2:]
+    fh, fw = flow.shape[-2:]
+    if fh != -(-h // B) or fw != -(-w // B):
+        raise ValueError(f"flow: expected (2, {-(-h // B)}, {-(-w // B)}) for {w}x{h} frames "
+                         f"and {B}px blocks, got {tuple(flow.shape)}")
+    dev = flow.device
+    f = smooth_block_flow(flow) if smooth else sanitize_mv(flow)
+    vf = f.reshape(2, -1)
+    g = _positions(fh, fw, dev)
+    c = g * float(B) + (B - 1) / 2.0
+    vel = _length(vf)
+    diag = 0.05 * math.hypot(w, h)
+    hi = ((vel / diag).clamp(0.0, 1.0) * 1023.0).floor() * (vel > 1.0)
+    hi = hi.to(torch.int64)
+    s0 = _sample_points(color0, c[0] + vf[0], c[1] + vf[1])
+    s1 = _sample_points(color1, c[0], c[1])
+    q = c + vf
+    inside = (q[0] >= -0.5) & (q[0] < w - 0.5) & (q[1] >= -0.5) & (q[1] < h - 0.5)
+    lo = agreement_priority(luminance(s0[:, None]), luminance(s1[:, None]))[0, 0] * inside
+    pos = g + vf * ((1.0 - a) / B)
+    keys = [pack_entries(True, hi, lo, vf[k]) * (hi > 0) for k in (0, 1)]
+    buf = torch.zeros(2, (fh + 2) * (fw + 2), dtype=torch.int64, device=dev)
+    for idx, m in _footprint(pos, fh, fw, tap_threshold):
+        for k in (0, 1):
+            buf[k].scatter_reduce_(0, idx, keys[k] * m, reduce="amax")
+    return _crop(buf, fh, fw).clone()
+
+
+def flow_field_coords(n: int, size: int, block: int, device=None):
+    """Per pixel index 0..n-1 along one axis, its bilinear taps on a grid of ``size``
+    texels of ``block`` px: (i0, i1 int64, w0, w1 float32); a tap off the grid has
+    weight 0 (and a clamped index). Position ``(x - (block - 1) / 2) / block``."""
+    x = torch.arange(n, dtype=torch.float32, device=device)
+    gx = (x - (block - 1) / 2.0) / float(block)
+    x0 = torch.floor(gx)
+    fx = gx - x0
+    i0 = x0.to(torch.int64)
+    i1 = i0 + 1
+    w0 = (1.0 - fx) * ((i0 >= 0) & (i0 < size))
+    w1 = fx * ((i1 >= 0) & (i1 < size))
+    return i0.clamp(0, size - 1), i1.clamp(0, size - 1), w0, w1
+
+
+def sample_flow_field(field: torch.Tensor, h: int, w: int, block: int = 8) -> torch.Tensor:
+    """Per-pixel optical-flow vectors from the packed block field (the SDK's
+    SampleOpticalFlowMotionVectorField): the bilinear mean of the four texels around the
+    pixel's grid position (texels never written count as the zero vector, as the SDK
+    unpacks them), the weights of taps off the grid left out and the rest normalised.
+    (2, fh, fw) int64 -> (2, h, w) float32 px."""
+    vec, _, _ = unpack_vector_field(field)
+    fh, fw = vec.shape[-2:]
+    dev = vec.device
+    ya, yb, wy0, wy1 = flow_field_coords(h, fh, block, dev)
+    xa, xb, wx0, wx1 = flow_field_coords(w, fw, block, dev)
+    wy0, wy1 = wy0[:, None], wy1[:, None]
+    wx0, wx1 = wx0[None, :], wx1[None, :]
+    w00, w10, w01, w11 = wy0 * wx0, wy0 * wx1, wy1 * wx0, wy1 * wx1
+    sw = ((w00 + w10) + w01) + w11
+    t00 = vec[:, ya[:, None], xa[None, :]]
+    t10 = vec[:, ya[:, None], xb[None, :]]
+    t01 = vec[:, yb[:, None], xa[None, :]]
+    t11 = vec[:, yb[:, None], xb[None, :]]
+    acc = ((t00 * w00 + t10 * w10) + t01 * w01) + t11 * w11
+    return torch.where(sw > 0.0, acc / sw.clamp(min=1e-30), torch.zeros_like(acc))
+
+
 def upsample_block_flow(flow: torch.Tensor, h: int, w: int, block: int = 8) -> torch.Tensor:
     """Each pixel takes its block's vector: (2, nby, nbx) -> (2, h, w)."""
     up = flow.repeat_interleave(block, 1).repeat_interleave(block, 2)

@@ -110,7 +110,9 @@ class FSR3OpticalFlow(Stage):
     help = ("FfxOpticalFlow: 8-bit luminance pyramid, 8x8 blocks, SAD search -8..+7 coarse to "
             "fine, 3x3 vector median, 1/8 resolution (flow=block); or OpenCV DIS flow "
             "(flow=dis, a stand-in, labelled). Then the optical-flow vector field of the "
-            "interpolated frame (magnitude priority, atomic max, pyramid fill).")
+            "interpolated frame (magnitude priority, atomic max): on the block grid, "
+            "sampled bilinearly per pixel, as the FidelityFX SDK (field=block), or per pixel "
+            "with a pyramid fill (field=pixel).")
     inputs = ("color0", "color1", "alpha")
     optional_inputs = ("state", "number0", "number1")
     outputs = ("of_mv",)
@@ -124,14 +126,23 @@ class FSR3OpticalFlow(Stage):
         Option("subpixel", "bool", False, "sub-pixel refinement at the finest level: parabola "
                "vertex of the SAD around the integer vector, per axis (block)"),
         Option("min_flow", "float", 0.0, "flow vectors this short or shorter (px) are zeroed "
-               "before the vector field (the FidelityFX SDK skips vectors of 1 px or less)",
-               range=(0.0, 64.0)),
+               "before the vector field (field=block skips vectors of 1 px or less anyway, "
+               "as the FidelityFX SDK does)", range=(0.0, 64.0)),
+        Option("field", "choice", "pixel", "block = the vector field at the flow's "
+               "resolution, one texel per 8x8 block, sampled bilinearly per pixel (the "
+               "FidelityFX SDK's); pixel = the flow upsampled to pixels, a field per pixel "
+               "with its holes filled from a mip pyramid (fgen before stop 27; flow=dis "
+               "always)", choices=("block", "pixel")),
+        Option("smooth", "bool", True, "field=block: the SDK's 3x3 filter of the block "
+               "vectors before the field (weighted by length and agreement with the "
+               "neighbours' mean)"),
     )
 
     def run(self, ctx):
         from fgcli.ops._util import all_set, reads_back
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import dis_flow, magnitude_priority, upsample_block_flow
+        from fgcli.ops.fsr3 import (dis_flow, flow_vector_field, magnitude_priority,
+                                    upsample_block_flow)
 
         c0, c1 = ctx["color0"], ctx["color1"]
         h, w = c1.shape[-2:]
@@ -159,6 +170,11 @@ class FSR3OpticalFlow(Stage):
             hi = magnitude_priority(f)
             if memo is not None:
                 memo.update(pair=key, f=f, hi=hi, luma=((n1, key[2]), l1))
+        if self.flow != "dis" and self.field == "block":
+            # the SDK's: the field on the block grid (32,400 texels at 1080p; torch on both
+            # backends), sampled per pixel
+            field = flow_vector_field(c0, c1, f, ctx["alpha"], 8, smooth=self.smooth)
+            return {"of_mv": op("sample_flow_field", ctx)(field, h, w, 8)}
         if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
             f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
