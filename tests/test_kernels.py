@@ -561,6 +561,14 @@ def _fsr3_inputs(h, w, seed):
     return c0, c1, v, d
 
 
+def _kfield(*args):
+    """K.vector_field as int64 (the kernel's field is uint32: the same entries, half the
+    bytes; the reference's is int64)."""
+    f = K.vector_field(*args)
+    assert f.dtype == torch.uint32
+    return f.to(torch.int64)
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_scatters(h, w):
     """FSR 3's footprint scatters (vector field with and without the secondary walk,
@@ -572,11 +580,11 @@ def test_fsr3_scatters(h, w):
     hi = fsr3.depth_priority(d)
     for a in (0.5, 0.3, 0.0, 1.0):
         for sec, ms in ((True, 64), (True, 2), (False, 64)):
-            same("field", K.vector_field(c0, c1, v, hi, a, sec, ms),
+            same("field", _kfield(c0, c1, v, hi, a, sec, ms),
                  fsr3.vector_field(c0, c1, v, hi, a, sec, ms))
         for k, r in zip(K.reconstruct_depths(d, v, a), fsr3.reconstruct_depths(d, v, a)):
             same("depth", k, r)
-    assert torch.equal(K.vector_field(c0, c1, v * 0, hi), fsr3.vector_field(c0, c1, v * 0, hi))
+    assert torch.equal(_kfield(c0, c1, v * 0, hi), fsr3.vector_field(c0, c1, v * 0, hi))
     # depth reconstruction zeroes vectors shorter than 0.1 px: lengths within a few ulps of
     # it, along the axes and the diagonal (the kernel works the length out itself)
     if h >= 8:
@@ -625,7 +633,7 @@ def test_fsr3_lengths_take_torchs_sqrt():
     c0, c1, _, _ = _fsr3_inputs(h, w, 5)
     hi = fsr3.depth_priority(d)
     for a in (0.0, 0.5):
-        same("field (torch's sqrt)", K.vector_field(c0, c1, v, hi, a, True, 64),
+        same("field (torch's sqrt)", _kfield(c0, c1, v, hi, a, True, 64),
              fsr3.vector_field(c0, c1, v, hi, a, True, 64))
 
 
@@ -725,6 +733,15 @@ def test_unpack_vector_field():
     k = K.unpack_vector_field(view)
     same_result("unpack in place", k, r)
     assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
+
+    # the kernel's vector_field is uint32 (the same entries): plain, and in place
+    f32 = f.to(torch.uint32)
+    for x in (f32, padded.to(torch.uint32)[:, 1:257, 1:257]):
+        k = K.unpack_vector_field(x)
+        same_result("unpack uint32", k, r)
+        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
+        same_result("unpack uint32 (reference)", fsr3.unpack_vector_field(x), r)
+    assert K._padded_base(padded.to(torch.uint32)[:, 1:257, 1:257])[1] == 1
 
 
 @pytest.mark.parametrize("h,w,block", [(1080, 1920, 8), (37, 53, 8), (9, 17, 8), (1, 1, 8),

@@ -262,10 +262,12 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
 
 
 def unpack_vector_field(field: torch.Tensor):
-    """Packed field (2, H, W) int64 -> (vec (2, H, W) float32, priority (1, H, W) int64
-    (16 bits: primary | hi | lo), valid (1, H, W) bool)."""
+    """Packed field (2, H, W) int64 (or uint32: the numba backend's vector_field) ->
+    (vec (2, H, W) float32, priority (1, H, W) int64 (16 bits: primary | hi | lo), valid
+    (1, H, W) bool)."""
     if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2:
         raise ValueError("field: expected a (2, H, W) int64 tensor")
+    field = field.to(torch.int64)
     bits = (field & 0xFFFF).to(torch.int32)
     bits = torch.where(bits >= 32768, bits - 65536, bits).to(torch.int16)
     vec = bits.view(torch.float16).to(torch.float32)
