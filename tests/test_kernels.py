@@ -801,8 +801,8 @@ def test_pyramid_level_and_fills(h, w):
 
 
 def test_depth_priority_is_the_reference():
-    """FSR 3's 10-bit depth priority: the kernels around torch's own pow give the
-    reference's ranks exactly: depths over 42 decades with both float32 neighbours of each
+    """FSR 3's 10-bit depth priority: the kernel gives the reference's ranks exactly:
+    depths over 42 decades with both float32 neighbours of each
     (so that ranks change between neighbours somewhere), sky, NaN, negative, -0.0 and the
     1e30 clamp."""
     from fgcli.ops import fsr3
@@ -817,12 +817,34 @@ def test_depth_priority_is_the_reference():
     assert len(set(r.view(-1).tolist())) == 1023  # every rank, so every boundary, is met
 
 
+def test_depth_priority_ranks_exactly():
+    """depth_priority's table is floor(1023 / (1 + min(d, 1e30)^0.33)) clamped to 1..1023
+    in exact arithmetic (float64 here): every threshold and its 4 float32 neighbours each
+    side, 200k depths over 78 decades, 0, the smallest denormal, 1e30 and beyond, +inf
+    (all 2.1e9 non-negative float32 were checked the same way once: no difference)."""
+    import numpy as np
+
+    from fgcli.ops import fsr3
+
+    base, thr, b0 = fsr3.depth_priority_table()
+    t = thr[~np.isnan(thr)].view(np.int32).astype(np.int64)
+    assert t.size == 1021  # every step but the first (0 -> 1023) lies inside a bucket
+    bits = np.concatenate([t + k for k in range(-4, 5)])
+    rnd = 10.0 ** np.random.default_rng(9).uniform(-40, 38, 200_000)
+    d = np.concatenate([bits.astype(np.int32).view(np.float32), rnd.astype(np.float32),
+                        np.float32([0.0, 1e-45, 1e30, 2e30, 3e38, np.inf])])
+    d64 = d.astype(np.float64)
+    want = np.clip(np.floor(1023.0 / (1.0 + np.power(np.minimum(d64, 1e30), 0.33))), 1, 1023)
+    got = fsr3.depth_priority(torch.from_numpy(d)[None]).view(-1).numpy()
+    assert np.array_equal(got, want)
+    assert set(np.unique(got)) == set(range(1, 1024))
+
+
 @pytest.mark.parametrize("h,w", [(1080, 1920), (37, 53), (1, 1)])
 def test_luma8_is_the_reference(h, w):
-    """FfxOpticalFlow's 8-bit luminance: the kernels around torch's own pow give the
-    reference's values bit for bit: every rounding boundary k + 1/2 of 255 sRGB(Y) hit
-    from both sides, the linear segment and its threshold, NaN / inf / negative / -0.0 /
-    HDR colours."""
+    """FfxOpticalFlow's 8-bit luminance: the kernel gives the reference's values bit for
+    bit: every rounding boundary k + 1/2 of 255 sRGB(Y) hit from both sides, the linear
+    segment and its threshold, NaN / inf / negative / -0.0 / HDR colours."""
     from fgcli.ops import color as C
     from fgcli.ops import fsr3
 
@@ -847,6 +869,33 @@ def test_luma8_is_the_reference(h, w):
     assert torch.equal(k_out.view(torch.int32), r_out.view(torch.int32))
     if n >= 600:  # the boundaries were hit: both neighbours of some k + 1/2
         assert len(set(r_out.view(-1)[:m].tolist())) > 200
+
+
+def test_luma8_rounds_exactly():
+    """luma8's table is 255 sRGB(Y) rounded to nearest in exact arithmetic (float64 here):
+    every threshold and its 4 float32 neighbours each side, 200k random values in [0, 1],
+    the linear segment's end, 0, -0.0 and 1 (all 1.07e9 float32 in [0, 1] were checked the
+    same way once: no difference)."""
+    import numpy as np
+
+    from fgcli.ops import fsr3
+
+    base, thr, b0 = fsr3.luma8_table()
+    t = thr[np.isfinite(thr)].view(np.int32).astype(np.int64)
+    assert t.size == 255  # every code boundary lies inside a bucket
+    bits = np.concatenate([t + d for d in range(-4, 5)])
+    rnd = np.random.default_rng(8).random(200_000, dtype=np.float32)
+    y = np.concatenate([bits.astype(np.int32).view(np.float32), rnd,
+                        np.float32([0.0031308, 0.0031307, 0.0, -0.0, 1.0, 0.99999994, 1e-30])])
+    got = fsr3.luma8(torch.from_numpy(np.stack([y, y, y]))[:, None, :]).view(-1).numpy()
+    # (a grey colour's Y is y up to the luma weights' rounding: compare at the Y luma8 saw)
+    yy = (torch.from_numpy(y) * 0.2126 + torch.from_numpy(y) * 0.7152) + \
+        torch.from_numpy(y) * 0.0722
+    y64 = yy.clamp(0, 1).numpy().astype(np.float64)
+    e = 255.0 * np.minimum(12.92 * y64, 1.055 * np.power(y64, 1 / 2.4) - 0.055)
+    want = np.clip(np.floor(e + 0.5), 0, 255)
+    assert np.array_equal(got, want)
+    assert set(np.unique(got)) == set(range(256))
 
 
 @pytest.mark.parametrize("h,w", [(37, 53), (36, 52), (1, 5), (5, 1), (2, 2), (64, 3)])

@@ -254,30 +254,20 @@ def _pack(prio, comp):
 
 
 @njit(**KERNEL)
-def depth_clamp_kernel(depth, z):
-    """fgcli.ops.fsr3.depth_priority's first part: z = sanitize_depth(depth) clamped to
-    at most 1e30 (the input of torch's pow)."""
-    h, w = z.shape
+def depth_rank_kernel(depth, base, thr, b0, shift, hi):
+    """fgcli.ops.fsr3.depth_priority: d = sanitize_depth(depth), then its table lookup:
+    hi = 1023 - (base[i] + (d >= thr[i])), i = (bits of d >> shift) - b0 clamped to the
+    table; depth 0 -> 1023. hi (H, W) int64."""
+    h, w = hi.shape
+    n1 = base.shape[0] - 1
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
             v = sdepth_b(depth[y, x])
-            z[y, x] = F32(1e30) if v > F32(1e30) else v
-
-
-@njit(**KERNEL)
-def depth_rank_kernel(z, hi):
-    """depth_priority's last part: hi = clamp(floor((1 - z / (1 + z)) * 1023), 1, 1023)
-    as int64, z = the clamped depth to the power 0.33 (torch's pow)."""
-    h, w = z.shape
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            v = z[y, x]
-            r = np.floor((F32(1.0) - v / (F32(1.0) + v)) * F32(1023.0))
-            r = F32(1.0) if r < F32(1.0) else r
-            r = F32(1023.0) if r > F32(1023.0) else r
-            hi[y, x] = np.int64(r)
+            i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
+            i = 0 if i < 0 else (n1 if i > n1 else i)
+            step = base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
+            hi[y, x] = 1023 - (np.int64(step) if v > F32(0.0) else np.int64(0))
 
 
 @njit(**KERNEL)

@@ -279,11 +279,12 @@ def pool2_u8_kernel(src, dst):
 # ----------------------------------------------------------------------------- luma8
 
 @njit(**KERNEL)
-def luma_clip_kernel(color, t, c, p):
-    """fgcli.ops.fsr3.luma8's first part: c = clip(luminance(sanitize_values(color)), 0, 1)
-    (NaN -> 0, +inf -> 1, -inf -> 0 first, as _clip01) and p = max(c, t), the power
-    branch's input. (H, W) outputs."""
-    h, w = c.shape
+def luma8_kernel(color, base, thr, b0, shift, out):
+    """fgcli.ops.fsr3.luma8: Y = clip(luminance(sanitize_values(color)), 0, 1) (NaN -> 0,
+    +inf -> 1, -inf -> 0, as _clip01), then luma8_table's lookup: base[i] + (Y >= thr[i]),
+    i = (bits of Y >> shift) - b0 clamped to the table. out (H, W) float32."""
+    h, w = out.shape
+    n1 = base.shape[0] - 1
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
@@ -291,23 +292,6 @@ def luma_clip_kernel(color, t, c, p):
             v = F32(0.0) if v != v else v
             v = F32(1.0) if v > F32(1.0) else v  # (+inf -> 1)
             v = F32(0.0) if v < F32(0.0) else v  # (-inf -> 0)
-            c[y, x] = v
-            p[y, x] = t if v < t else v
-
-
-@njit(**KERNEL)
-def luma_encode_kernel(p, c):
-    """luma8's last part, in place on c: round(255 clamp(min((p - 1) 0.055 + p, 12.92 c),
-    0, 1)) with p = max(c, t)^(1/2.4) from torch (each product and sum rounded on its
-    own, as the reference's in-place ops)."""
-    h, w = c.shape
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            pv = p[y, x]
-            hi = (pv - F32(1.0)) * F32(0.055) + pv
-            lo = c[y, x] * F32(12.92)
-            m = hi if hi < lo else lo
-            m = F32(0.0) if m < F32(0.0) else m
-            m = F32(1.0) if m > F32(1.0) else m
-            c[y, x] = np.rint(m * F32(255.0))
+            i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
+            i = 0 if i < 0 else (n1 if i > n1 else i)
+            out[y, x] = base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))

@@ -655,9 +655,9 @@ def _cache_cold(families=None) -> bool:
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
                     pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
-                    flow.luma_clip_kernel, flow.luma_encode_kernel,
+                    flow.luma8_kernel,
                     field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
-                    field.depth_clamp_kernel, field.depth_rank_kernel,
+                    field.depth_rank_kernel,
                     field.walk_steps_kernel, field.length_kernel,
                     fsr3.interp_depth_kernel)
     from fgcli.kernels import geom, gffe
@@ -843,46 +843,43 @@ def _block_flow_u8(lum0, lum1, levels, median):
 
 
 def luma8(color):
-    """fgcli.ops.fsr3.luma8: the luminance, its clip and the power branch's clamp in one
-    kernel, torch's own pow (the reference's call, so the same values), the rest of the
-    sRGB encoding and the rounding in a second kernel; 3 passes instead of about 12."""
+    """fgcli.ops.fsr3.luma8: the luminance, its clip and the table lookup in one kernel
+    (the reference's table)."""
     from fgcli.ops import fsr3 as FS
 
     if not (_f32cpu(color) and color.shape[0] == 3):
         return FS.luma8(color)
-    from fgcli.kernels.flow import luma_clip_kernel, luma_encode_kernel
+    from fgcli.kernels.flow import luma8_kernel
 
     h, w = color.shape[-2:]
-    c, p = _empty(1, h, w), _empty(1, h, w)
-    luma_clip_kernel(_a(color), F32(0.0031308), c.numpy()[0], p.numpy()[0])
-    p.pow_(1.0 / 2.4)
-    luma_encode_kernel(p.numpy()[0], c.numpy()[0])  # in place: c becomes the result
-    return c
+    out = _empty(1, h, w)
+    base, thr, b0 = FS.luma8_table()
+    luma8_kernel(_a(color), base, thr, np.int64(b0), np.int64(FS.LUMA8_SHIFT), out.numpy()[0])
+    return out
 
 
 def depth_priority(depth):
-    """fgcli.ops.fsr3.depth_priority: the sanitising and clamp in one kernel, torch's own
-    pow (the reference's call), the rank in a second kernel."""
+    """fgcli.ops.fsr3.depth_priority: the sanitising and the table lookup in one kernel
+    (the reference's table)."""
     from fgcli.ops import fsr3 as FS
 
     if not (_f32cpu(depth) and depth.shape[0] == 1):
         return FS.depth_priority(depth)
-    from fgcli.kernels.field import depth_clamp_kernel, depth_rank_kernel
+    from fgcli.kernels.field import depth_rank_kernel
 
     h, w = depth.shape[-2:]
-    z = _empty(1, h, w)
-    depth_clamp_kernel(_a(depth)[0], z.numpy()[0])
-    z.pow_(0.33)
     hi = _empty(1, h, w, dtype=torch.int64)
-    depth_rank_kernel(z.numpy()[0], hi.numpy()[0])
+    base, thr, b0 = FS.depth_priority_table()
+    depth_rank_kernel(_a(depth)[0], base, thr, np.int64(b0), np.int64(FS.DEPTH_SHIFT),
+                      hi.numpy()[0])
     return hi
 
 
 def _field_entries(color0, color1, vec, hi, alpha, sec=False):
     """fgcli.ops.fsr3.field_entries by the numba kernel: (pos (2, N), keys [(N,), (N,)]
-    uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N), longest) numpy
-    arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and vf / dist.clamp(min=
-    1e-6)), else None. Other inputs: the reference's own function."""
+    uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N),
+    longest) numpy arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and
+    vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function."""
     from fgcli.ops import fsr3 as FS
 
     from fgcli.kernels.warp import flat_ok

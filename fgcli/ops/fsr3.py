@@ -19,14 +19,16 @@ pyramid_inpaint (colour).
 """
 from __future__ import annotations
 
+import functools
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 from fgcli.ops._util import (check_alpha, check_same, check_tensor, reads_back,
                              sanitize_depth, sanitize_mv, sanitize_values)
-from fgcli.ops.color import luminance, srgb_oetf
+from fgcli.ops.color import luminance
 from fgcli.ops.pyramid import pyramid_inpaint
 from fgcli.ops.warp import backward_warp
 
@@ -134,13 +136,36 @@ def reconstruct_depths(depth: torch.Tensor, mv: torch.Tensor, alpha: float = 0.5
 
 # ----------------------------------------------------------------------------- pass 2
 
+DEPTH_SHIFT = 16  # depth_priority's table buckets: float32 bit patterns >> 16
+
+
+@functools.lru_cache(maxsize=None)
+def depth_priority_table() -> tuple[np.ndarray, np.ndarray, int]:
+    """depth_priority's step_table (f = 1023 - rank, exact in float64) and its first
+    bucket b0. Buckets from 2**-31 to 2**31: every rank step but the first (depth 0 ->
+    1023, any depth above 0 -> at most 1022, handled by the callers) lies inside, and
+    from 1.6e8 on the rank is 1 (the last bucket answers for larger depths)."""
+    def f(d):
+        z = np.power(np.minimum(d, 1e30), 0.33)
+        return 1023.0 - np.clip(np.floor(1023.0 / (1.0 + z)), 1.0, 1023.0)
+
+    b0, b1 = (96 << 23) >> DEPTH_SHIFT, (158 << 23) >> DEPTH_SHIFT  # 2**-31, 2**31
+    base, thr = step_table(f, 158 << 23, 1022, b0, b1, DEPTH_SHIFT)
+    assert base[0] == 1.0 and base[-1] == 1022.0 and np.isnan(thr[-1])
+    return base, thr, b0
+
+
 def depth_priority(depth: torch.Tensor) -> torch.Tensor:
     """FSR 3's 10-bit "near is better" priority: ``z' = z^0.33``,
-    ``max(1, floor((1 - z'/(1 + z')) * 1023))``; +inf (sky) -> 1, 0 -> 1023. int64, any
+    ``max(1, floor((1 - z'/(1 + z')) * 1023))`` (= floor(1023 / (1 + z')), exactly, by
+    depth_priority_table: no float32 pow); +inf (sky) -> 1, 0 -> 1023. int64, any
     shape."""
-    z = sanitize_depth(depth).clamp(max=1e30).pow(0.33)
-    hi = ((1.0 - z / (1.0 + z)) * 1023.0).floor()
-    return hi.clamp(1.0, 1023.0).to(torch.int64)
+    d = sanitize_depth(depth)
+    base, thr, b0 = (torch.from_numpy(t).to(d.device) if isinstance(t, np.ndarray) else t
+                     for t in depth_priority_table())
+    i = ((d.view(torch.int32) >> DEPTH_SHIFT) - b0).clamp_(0, base.numel() - 1).long()
+    step = torch.where(d > 0.0, base[i] + (d >= thr[i]).float(), 0.0)
+    return 1023 - step.to(torch.int64)
 
 
 def magnitude_priority(vec: torch.Tensor, scale: float = 8.0) -> torch.Tensor:
@@ -293,11 +318,70 @@ def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Te
 
 # ----------------------------------------------------------------------------- optical flow
 
+def step_table(f, hi_bits: int, steps: int, b0: int, b1: int, shift: int):
+    """A lookup table for a non-decreasing integer function f of a float32 y >= 0 (float64
+    arithmetic on the float32 values, vectorised), f(0) = 0, f(float32 with bits hi_bits)
+    >= steps: (base (n,) float32, thr (n,) float32).
+
+    T_j (j = 1..steps) is the smallest float32 with f >= j (bisection over the ordered bit
+    patterns). Bucket i holds the float32s whose bits >> shift are b0 + i (i < n, the last
+    bucket b1): base[i] = the number of T_j at or below its first value, thr[i] = the one
+    T_j inside it (NaN when none: y >= NaN is false for every y, +inf too; more than one
+    never happens, asserted). So for y in
+    the buckets' range f(y) = base[i] + (y >= thr[i]), exactly as the float64 f decides,
+    with no float32 pow (which rounds differently near a step, and torch's vectorised
+    and scalar pow differ there too). Values below bucket 0 read it (callers check that
+    no T_j lies below, except where they handle the values themselves)."""
+    want = np.arange(1, steps + 1, dtype=np.float64)
+    lo = np.zeros(steps, dtype=np.int64)
+    hi = np.full(steps, hi_bits, dtype=np.int64)
+    while (hi - lo > 1).any():
+        mid = (lo + hi) // 2
+        ok = f(mid.astype(np.int32).view(np.float32).astype(np.float64)) >= want
+        hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
+    n = b1 - b0 + 1
+    start = (np.arange(n, dtype=np.int64) + b0) << shift
+    assert np.all(np.diff(hi) > 0)
+    base = np.searchsorted(hi, start, side="right").astype(np.float32)
+    inside = np.clip((hi >> shift) - b0, 0, n - 1)
+    own = (hi > start[inside]) & (hi < (b1 + 1) << shift)
+    assert np.bincount(inside[own], minlength=n).max() <= 1
+    thr = np.full(n, np.nan, dtype=np.float32)
+    thr[inside[own]] = hi[own].astype(np.int32).view(np.float32)
+    return base, thr
+
+
+LUMA8_SHIFT = 15  # luma8's table buckets: float32 bit patterns >> 15 (8 mantissa bits)
+
+
+@functools.lru_cache(maxsize=None)
+def luma8_table() -> tuple[np.ndarray, np.ndarray, int]:
+    """luma8's step_table and its first bucket b0: the code of a float32 Y in [0, 1] is
+    255 sRGB(Y) rounded to nearest (sRGB in float64 as the minimum of its two branches,
+    srgb_oetf's form). Buckets from 2**-13 (T_1 ~ 1.5e-4 lies above: below it every code
+    is 0) to 1.0."""
+    def enc(y):
+        e = 255.0 * np.minimum(12.92 * y, 1.055 * np.power(y, 1.0 / 2.4) - 0.055)
+        return np.floor(e + 0.5)
+
+    b0, b1 = (114 << 23) >> LUMA8_SHIFT, 0x3F800000 >> LUMA8_SHIFT  # 2**-13, 1.0
+    base, thr = step_table(enc, 0x3F800000, 255, b0, b1, LUMA8_SHIFT)
+    assert base[0] == 0.0  # no step below bucket 0
+    return base, thr, b0
+
+
 def luma8(color: torch.Tensor) -> torch.Tensor:
-    """8-bit display luminance (FfxOpticalFlow input): round(255 sRGB(clip(Y))), float32
-    (1, H, W) with integer values 0..255."""
+    """8-bit display luminance (FfxOpticalFlow input): 255 sRGB(clip(Y)) rounded to nearest
+    (exactly, by luma8_table: a float32 pow rounds differently near k + 1/2, and torch's
+    vectorised and scalar pow differ there too), float32 (1, H, W) with integer values
+    0..255; NaN reads as 0, +inf as 1."""
     color = check_tensor(color, "color", 3, allow_batch=False)
-    return torch.round(srgb_oetf(luminance(sanitize_values(color))) * 255.0)
+    y = luminance(sanitize_values(color))
+    y = torch.nan_to_num(y, nan=0.0, posinf=1.0, neginf=0.0).clamp_(0.0, 1.0)
+    base, thr, b0 = (torch.from_numpy(t).to(y.device) if isinstance(t, np.ndarray) else t
+                     for t in luma8_table())
+    i = ((y.view(torch.int32) >> LUMA8_SHIFT) - b0).clamp_(0, base.numel() - 1).long()
+    return base[i] + (y >= thr[i]).float()
 
 
 def _vector_median3(f: torch.Tensor) -> torch.Tensor:
