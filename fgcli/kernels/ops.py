@@ -1021,7 +1021,7 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
 
     a = check_alpha(alpha)
     h, w = depth.shape[-2:]
-    bufs = np.full((2, (h + 2) * (w + 2)), np.inf, dtype=np.float32)
+    out = _empty(2, h, w)  # (set to +inf by the kernel)
     ks = np.array([1.0, 1.0 - a], dtype=np.float32)  # torch rounds the scalars so
     from fgcli.kernels.field import length_kernel
 
@@ -1030,9 +1030,8 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
     length_kernel(ma, lens)
     torch.sqrt(torch.from_numpy(lens), out=torch.from_numpy(lens))  # (MKL's, as _length)
     depth_scatter_pair_kernel(_a(depth)[0], ma, lens, F32(short_mv), ks, F32(tap_threshold),
-                              bufs)
-    out = FS._crop(torch.from_numpy(bufs), h, w)  # (2, H, W)
-    return out[0:1].clone(), out[1:2].clone()
+                              out.numpy())
+    return out[0:1], out[1:2]
 
 
 # ----------------------------------------------------------------------------- gffe
