@@ -495,8 +495,8 @@ def test_vector_median_is_the_references():
 def test_mpsadbw_block_search_equals_the_portable_kernel(monkeypatch):
     """On x86 the 8x8 / -8..7 search sums its SADs with SSE4.1 mpsadbw (exact integers):
     the same vectors as the portable float kernel, for predictions that push the window
-    past every edge, on noise, flat and striped images; and the intrinsic's sixteen sums
-    equal numpy's."""
+    past every edge, on noise, flat and striped images; and the intrinsic's least key
+    equals numpy's brute force."""
     import numpy as np
 
     from fgcli.kernels._intrin import HAVE_MPSADBW
@@ -506,25 +506,33 @@ def test_mpsadbw_block_search_equals_the_portable_kernel(monkeypatch):
         pytest.skip("no SSE4.1 (the portable kernel runs instead)")
     from numba import njit
 
-    from fgcli.kernels._intrin import sad16_rows
+    from fgcli.kernels._intrin import sad_search8, sad_search8_sse41
+    from fgcli.kernels.flow import _ORDER
 
     @njit
-    def sads(win, woff, cur, out):
-        sad16_rows(win, woff, 24, cur, 0, out)
+    def search(win, cur, cst):
+        return sad_search8(win, 0, 24, cur, 0, cst, _ORDER)
+
+    @njit
+    def search_sse41(win, cur, cst):
+        return sad_search8_sse41(win, 0, 24, cur, 0, cst, _ORDER)
 
     rng = np.random.default_rng(4)
-    for _ in range(20):
+    for i in range(40):  # the least key against a brute force over the 256 offsets
         win = rng.integers(0, 256, 23 * 24 + 24, dtype=np.uint8)
-        cur = np.zeros(8 * 16, np.uint8)
-        cur.reshape(8, 16)[:, :8] = rng.integers(0, 256, (8, 8))
-        woff = int(rng.integers(0, 16)) * 24
-        out = np.empty(16, np.uint16)
-        sads(win, woff, cur, out)
-        wv = win[woff:woff + 8 * 24].reshape(8, 24).astype(np.int64)
-        cv = cur.reshape(8, 16)[:, :8].astype(np.int64)
-        want = [np.abs(wv[:, dx:dx + 8] - cv).sum() for dx in range(16)]
-        assert out.tolist() == want
-    for h, w in ((64, 96), (37, 53), (9, 7), (1, 30)):
+        if i % 4 == 0:  # many equal SADs: the tie part decides
+            win[:] = rng.integers(0, 2, win.size) * 255
+        cst = 16 if i % 2 else 40  # the block's rows in a copy, or in place in a frame
+        cur = rng.integers(0, 256, 8 * cst, dtype=np.uint8)
+        if i % 4 == 0:
+            cur[:] = rng.integers(0, 2, cur.size) * 255
+        wv = win[:23 * 24].reshape(23, 24).astype(np.int64)
+        cv = cur.reshape(8, cst)[:, :8].astype(np.int64)
+        keys = [(int(np.abs(wv[dy:dy + 8, dx:dx + 8] - cv).sum()) << 14) |
+                int(_ORDER[16 * dy + dx]) for dy in range(16) for dx in range(16)]
+        assert search(win, cur, cst) == min(keys)
+        assert search_sse41(win, cur, cst) == min(keys)  # (the same code without AVX2)
+    for h, w in ((64, 96), (135, 240), (37, 53), (9, 7), (1, 30), (23, 24), (24, 40)):
         nby, nbx = -(-h // 8), -(-w // 8)
         noise = rng.integers(0, 256, (h, w)).astype(np.uint8)
         flat = np.full((h, w), 77, np.uint8)
