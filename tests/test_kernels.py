@@ -612,6 +612,31 @@ def test_fsr3_scatters(h, w):
                 same("depth (short vectors)", k, r)
 
 
+def test_fsr3_field_scatter_runs():
+    """The field scatter writes runs of 16 sources whose footprints continue each other
+    (smooth motion) as vector maxima: regions of one sub-pixel vector each (all four taps
+    written), runs cut by a region's edge, by a clamped tap at the frame's edge and by
+    chunk ends, beside random vectors; against the reference exactly."""
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(11)
+    for h, w in ((40, 2100), (19, 67)):  # (2100: a row spans a chunk end of 2048 sources)
+        c0, c1 = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)
+        v = torch.randn(2, h, w, generator=g) * 3.0
+        v[0, : h // 2, : w // 2] = 0.3  # one sub-pixel vector per region
+        v[1, : h // 2, : w // 2] = -0.6
+        v[0, h // 2:, w // 3:] = -7.45
+        v[1, h // 2:, w // 3:] = 2.2
+        v[:, 3, :] = torch.tensor([[40.5], [0.5]])  # runs off the right edge
+        for r, n in ((5, 31), (7, 47), (9, 16), (11, 17)):  # a run, then one that breaks it
+            v[:, r, :n] = torch.tensor([[2.3], [0.45]])
+        hi = fsr3.depth_priority(torch.rand(1, h, w, generator=g) + 0.5)
+        for a in (0.5, 0.25):
+            for sec in (False, True):
+                same("field runs", _kfield(c0, c1, v, hi, a, sec, 64),
+                     fsr3.vector_field(c0, c1, v, hi, a, sec, 64))
+
+
 def test_fsr3_lengths_take_torchs_sqrt():
     """The short-vector test of depth reconstruction and the secondary walk's lengths use
     torch.sqrt over the whole plane, as the reference (MKL's on x86 builds, which differs

@@ -110,6 +110,29 @@ def ld_pair(typingctx, arr, i):
     return types.UniTuple(types.float32, 2)(arr, i), codegen
 
 
+@intrinsic
+def umax16(typingctx, buf, q, src, j):
+    """buf[q:q + 16] = max(buf[q:q + 16], src[j:j + 16]) as one 16-lane vector operation
+    (1-D C-contiguous uint32 arrays; no bounds checks)."""
+    if not all(isinstance(a, types.Array) and a.dtype == types.uint32 and a.ndim == 1
+               and a.layout == "C" for a in (buf, src)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        bty, qty, sty, jty = sig.args
+        v = ir.VectorType(ir.IntType(32), 16)
+        pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
+                             v.as_pointer())
+        ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
+                             v.as_pointer())
+        a = builder.load(pb, align=4)
+        b = builder.load(ps, align=4)
+        builder.store(builder.select(builder.icmp_unsigned(">", b, a), b, a), pb, align=4)
+        return context.get_dummy_value()
+
+    return types.void(buf, q, src, j), codegen
+
+
 def _host_features() -> list[str]:
     """LLVM's feature list of this CPU on x86-64 (``+sse4.1``, ``+avx2``, ...), else []."""
     import platform
