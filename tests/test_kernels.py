@@ -744,37 +744,64 @@ def test_half_bits():
     assert torch.equal(torch.from_numpy(out), ref)
 
 
-def test_unpack_vector_field():
+def test_fill_packed_field_reads_every_half():
     """Every binary16 pattern (NaN, inf, subnormals, -0.0) in both components, written and
-    unwritten texels, against the reference."""
+    unwritten texels, against the reference: the field as given, the scatter's padded
+    buffer read in place (its ring holds other values: a read of it would show), and both
+    as uint32 (the kernel's vector_field)."""
     from fgcli.ops import fsr3
 
     b = torch.arange(65536, dtype=torch.int64)
     prio = torch.randint(0, 65536, (65536,), generator=torch.Generator().manual_seed(1))
     prio[::7] = 0  # unwritten
     f = torch.stack([(prio << 16) | b, (prio << 16) | b.flip(0)]).view(2, 256, 256)
-    k, r = K.unpack_vector_field(f), fsr3.unpack_vector_field(f)
-    same_result("unpack", k, r)
-    assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
-
-    # vector_field's result: the interior view of its padded buffers, read in place
-    # (the ring holds other values: a read of it would show)
+    r = fsr3.fill_packed_field(f)
     padded = torch.full((2, 258, 258), (7 << 16) | 0x3C00, dtype=torch.int64)
     padded[:, 1:257, 1:257] = f
     view = padded[:, 1:257, 1:257]
     assert K._padded_base(view)[1] == 1 and K._padded_base(f)[1] == 0
-    k = K.unpack_vector_field(view)
-    same_result("unpack in place", k, r)
-    assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
+    u32 = padded.to(torch.uint32)[:, 1:257, 1:257]
+    assert K._padded_base(u32)[1] == 1
+    for name, x in (("given", f), ("in place", view), ("uint32", f.to(torch.uint32)),
+                    ("uint32 in place", u32)):
+        k = K.fill_packed_field(x)
+        same_result(f"packed fill, {name}", k, r)
+        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32)), name  # -0.0
+        same_result(f"packed fill, {name} (reference)", fsr3.fill_packed_field(x), r)
 
-    # the kernel's vector_field is uint32 (the same entries): plain, and in place
-    f32 = f.to(torch.uint32)
-    for x in (f32, padded.to(torch.uint32)[:, 1:257, 1:257]):
-        k = K.unpack_vector_field(x)
-        same_result("unpack uint32", k, r)
-        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))
-        same_result("unpack uint32 (reference)", fsr3.unpack_vector_field(x), r)
-    assert K._padded_base(padded.to(torch.uint32)[:, 1:257, 1:257])[1] == 1
+
+@pytest.mark.parametrize("h,w", [(72, 128), (37, 53), (1, 9), (9, 1), (2, 2)])
+def test_fill_packed_field(h, w):
+    """The unpacking, weight and inpainting's dense part in one kernel: the reference's
+    vectors and mask exactly, for int64 and uint32 fields, the scatter's padded view,
+    every binary16 class (NaN, inf, subnormal, -0.0), wide and scattered holes, none, and
+    no texel written at all."""
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(h * 31 + w)
+    n = h * w
+    bits = torch.randint(0, 65536, (2, n), generator=g)
+    bits[:, :8] = torch.tensor([0x7E00, 0x7C00, 0xFC00, 0x0001, 0x8000, 0x3C00, 0x83FF,
+                                0x7BFF])[: min(8, n)]
+    prio = torch.randint(1, 65536, (n,), generator=g)
+    cases = {"scattered": torch.rand(n, generator=g) < 0.3,
+             "no holes": torch.zeros(n, dtype=torch.bool),
+             "all holes": torch.ones(n, dtype=torch.bool)}
+    wide = torch.zeros(h, w, dtype=torch.bool)
+    wide[: max(1, h // 2), : max(1, w // 3)] = True
+    cases["wide"] = wide.view(-1)
+    for name, hole in cases.items():
+        p = torch.where(hole, 0, prio)
+        f = ((p << 16)[None] | bits).view(2, h, w)
+        r = fsr3.fill_packed_field(f)
+        padded = torch.zeros(2, h + 2, w + 2, dtype=torch.uint32)
+        padded[:, 1:h + 1, 1:w + 1] = f.to(torch.uint32)
+        for x in (f, f.to(torch.uint32), padded[:, 1:h + 1, 1:w + 1]):
+            k = K.fill_packed_field(x)
+            same_result(f"packed fill ({name})", k, r)
+            assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32)), name
+        assert bool(r[1].all()) == (name == "no holes")
+        assert bool(r[1].any()) == (name != "all holes")
 
 
 @pytest.mark.parametrize("h,w,block", [(1080, 1920, 8), (37, 53, 8), (9, 17, 8), (1, 1, 8),
@@ -827,10 +854,6 @@ def test_pyramid_level_and_fills(h, w):
     holes = torch.rand(1, h, w, generator=g) < 0.3
     holes[:, : max(1, h // 3), : max(1, w // 3)] = True  # a wide hole: coarse levels
     same_result("inpaint", K.inpaint_color(c0, holes), fsr3.inpaint_color(c0, holes))
-    prio = (torch.rand(1, h, w, generator=g) * 65535).to(torch.int64)
-    valid = ~holes
-    same_result("field fill", K.fill_vector_field(v, prio, valid),
-                fsr3.fill_vector_field(v, prio, valid))
 
 
 def test_depth_priority_is_the_reference():

@@ -13,9 +13,12 @@ from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
 from fgcli.kernels._intrin import ld32, mad32, umax16
+from fgcli.kernels.pyramid import _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 _PRIMARY = np.uint32(1 << 31)
+U0 = np.uint8(0)
+U1 = np.uint8(1)
 
 
 @njit(**INLINE)
@@ -429,26 +432,51 @@ def half_value(b):
 
 
 @njit(**KERNEL)
-def unpack_kernel(field, o, vec, prio, valid):
-    """fgcli.ops.fsr3.unpack_vector_field: field (2, H, W) int64 or uint32 -> vec
-    (2, H, W) float32 (times valid, as the reference's product: -0.0 for a negative
-    unwritten component), prio (H, W) int64 (16 bits of the y entry), valid (H, W) bool.
-    With o = 1 the field is
-    the scatter's padded buffer (2, H + 2, W + 2), read inside its ring."""
-    h, w = prio.shape
+def field_fill_prep_kernel(field, o, out, hout, valid, lev1, nh):
+    """fill_packed_field's unpacking and inpaint_prep_kernel's dense part in one pass:
+    field (2, H, W) int64 or uint32 packed entries (o = 1: the scatter's padded buffer
+    (2, H + 2, W + 2), read inside its ring) -> out (2, H, W) = unpack_vector_field's
+    vectors (finite: already sanitised), valid (H, W) uint8 = written, hout = its
+    negation (the holes), lev1 (3, h2, w2) = the pooled [v * w, w] with w =
+    fill_vector_field's weight float32(prio) / 65535 (0 at holes), nh (h2,) the holes of
+    each pair of rows. The unpacked planes, the weight and the separate passes over them
+    (unpack, weight, dense part: ~110 MB at 1080p) are never made."""
+    h, w = hout.shape
+    h2 = lev1.shape[1]
     w2 = I32(w + 2 * o)
     plane = I32((h + 2 * o) * (w + 2 * o))
-    for py in prange(h):
-        y = np.int64(py)
-        r = mad32(y + o, w2, I32(o))  # (32-bit, unwrapped indices: contiguous loads)
-        for x in range(w):
-            i = mad32(I32(x), I32(1), r)
-            f0 = ld32(field, i)
-            f1 = ld32(field, mad32(plane, I32(1), i))
-            p = (f1 >> 16) & 0xFFFF
-            ok = p > 0
-            prio[y, x] = p
-            valid[y, x] = ok
-            m = F32(ok)
-            vec[0, y, x] = half_value(f0 & 0xFFFF) * m
-            vec[1, y, x] = half_value(f1 & 0xFFFF) * m
+    for pq in prange(h2):
+        q = np.int64(pq)
+        y0 = 2 * q
+        nr = 2 if y0 + 1 < h else 1
+        wr = np.empty((2, w), dtype=np.float32)
+        pr = np.empty((2, w), dtype=np.float32)
+        n = 0
+        for r in range(nr):
+            y = y0 + r
+            b = mad32(y + o, w2, I32(o))
+            for x in range(w):
+                i = mad32(I32(x), I32(1), b)
+                f0 = ld32(field, i)
+                f1 = ld32(field, mad32(plane, I32(1), i))
+                p = (f1 >> 16) & 0xFFFF
+                ok = p > 0
+                m = F32(ok)
+                out[0, y, x] = half_value(f0 & 0xFFFF) * m
+                out[1, y, x] = half_value(f1 & 0xFFFF) * m
+                valid[y, x] = U1 if ok else U0
+                hout[y, x] = U0 if ok else U1
+                wr[r, x] = (F32(p) / F32(65535.0)) * m
+            for x in range(w):
+                n += np.int64(hout[y, x])
+        nh[q] = n
+        for k in range(3):
+            for r in range(nr):
+                y = y0 + r
+                if k < 2:
+                    for x in range(w):
+                        pr[r, x] = out[k, y, x] * wr[r, x]
+                else:
+                    for x in range(w):
+                        pr[r, x] = wr[r, x]
+            _pool_rows(pr, nr, w, lev1, k, q)

@@ -469,8 +469,7 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
 def _inpaint(values, weight, holes, mode, decay, eps):
     """pyramid_inpaint's kernel path on checked inputs; weight None: 1 everywhere (holes
     given)."""
-    from fgcli.ops import pyramid as PY
-    from fgcli.kernels.pyramid import hole_index_kernel, inpaint_prep_kernel
+    from fgcli.kernels.pyramid import inpaint_prep_kernel
 
     c, h, w = values.shape
     out = _empty(c, h, w)
@@ -481,6 +480,17 @@ def _inpaint(values, weight, holes, mode, decay, eps):
     va = _a(values)
     inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
                         holes is not None, out.numpy(), _u8(hout)[0], lev1.numpy(), nh)
+    return _inpaint_levels(out, hout, lev1, nh, mode, decay, eps)
+
+
+def _inpaint_levels(out, hout, lev1, nh, mode, decay, eps):
+    """pyramid_inpaint's kernel path after its dense part (out: the sanitised values,
+    hout (1, H, W) the holes, lev1 and nh from inpaint_prep_kernel): the hole indices, the
+    coarser levels and the fill, in place on out."""
+    from fgcli.ops import pyramid as PY
+    from fgcli.kernels.pyramid import hole_index_kernel
+
+    h, w = out.shape[-2:]
     start = np.zeros(nh.size + 1, dtype=np.int64)
     np.cumsum(nh, out=start[1:])
     n = int(start[-1])
@@ -504,22 +514,31 @@ def _level_sample(level, i, xs, ys):
     return out
 
 
-def fill_vector_field(vec, priority, valid):
-    """fgcli.ops.fsr3.fill_vector_field: the weight and hole mask in one kernel, then the
-    inpainting's dense part and pyramid levels by numba kernels."""
+def fill_packed_field(field):
+    """fgcli.ops.fsr3.fill_packed_field: the unpacking, the weight and the inpainting's
+    dense part in one kernel (fgcli.kernels.field.field_fill_prep_kernel), then the
+    inpainting's levels as pyramid_inpaint's kernel path."""
     from fgcli.ops import fsr3 as FS
 
-    shape = tuple(valid.shape) if isinstance(valid, torch.Tensor) else ()
-    if not (_f32cpu(vec) and len(shape) == 3 and shape[0] == 1 and _boolcpu(valid, shape)
-            and isinstance(priority, torch.Tensor) and priority.dtype == torch.int64
-            and priority.device.type == "cpu" and tuple(priority.shape) == shape):
-        return FS.fill_vector_field(vec, priority, valid, pool=avg_pool2,
-                                    inpaint=pyramid_inpaint)
-    from fgcli.kernels.pyramid import field_weight_kernel
+    if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2 or \
+            field.device.type != "cpu" or field.dtype not in (torch.int64, torch.uint32) or \
+            field.shape[1] * field.shape[2] <= 1 or \
+            2 * (field.shape[1] + 2) * (field.shape[2] + 2) >= 2 ** 31:  # (32-bit indices)
+        return FS.fill_packed_field(field)
+    from fgcli.kernels.field import field_fill_prep_kernel
 
-    wgt, holes = _empty(*shape), _empty(*shape, dtype=torch.bool)
-    field_weight_kernel(_a(priority)[0], _u8(valid)[0], wgt.numpy()[0], _u8(holes)[0])
-    return pyramid_inpaint(vec, wgt, holes, mode="first")
+    h, w = field.shape[-2:]
+    out = _empty(2, h, w)
+    hout = _empty(1, h, w, dtype=torch.bool)
+    valid = _empty(1, h, w, dtype=torch.bool)
+    lev1 = _empty(3, (h + 1) // 2, (w + 1) // 2)
+    nh = np.empty((h + 1) // 2, dtype=np.int64)
+    src, o = _padded_base(field)
+    field_fill_prep_kernel(_a(field) if src is None else src, o, out.numpy(), _u8(hout)[0],
+                           _u8(valid)[0], lev1.numpy(), nh)
+    if not nh.any():
+        return out, valid
+    return _inpaint_levels(out, hout, lev1, nh, "first", 10.0, 1e-12)[0], valid
 
 
 def inpaint_color(color, holes, decay=10.0):
@@ -588,10 +607,7 @@ _GROUPS = (
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: luma8(i["c"])),
      ("fsr3", lambda i: depth_priority(i["d"])),
-     ("fsr3", lambda i: fill_vector_field(i["mv"], (i["d"] * 100).to(torch.int64),
-                                          i["d"] > 1.0)),
-     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
-     ("fsr3", lambda i: unpack_vector_field((i["mv"] * 1e4).to(torch.int64)))),
+     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"]))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
      ("core", lambda i: fill_extrap_holes(
@@ -601,7 +617,8 @@ _GROUPS = (
      ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
      ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
      ("fsr3", lambda i: _warm_pyramid_u8()),
-     ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"], (i["d"] * 100).to(torch.int64))),
+     ("fsr3", lambda i: fill_packed_field(vector_field(i["c"], i["c"], i["mv"],
+                                                       (i["d"] * 100).to(torch.int64)))),
      ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
      ("gffe", lambda i: _warm_gffe(i["d"]))),
 )
@@ -653,10 +670,10 @@ def _cache_cold(families=None) -> bool:
                     field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
-                    pyramid.inpaint_prep_kernel, pyramid.field_weight_kernel,
+                    pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,
-                    field.entries_kernel, field.luma_plane_kernel, field.unpack_kernel,
+                    field.entries_kernel, field.luma_plane_kernel,
                     field.depth_rank_kernel,
                     field.walk_steps_kernel, field.length_kernel,
                     fsr3.interp_depth_kernel)
@@ -915,25 +932,6 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False):
         walk_steps_kernel(va, dist, d)
         walk = (dist.reshape(-1), d.reshape(2, -1), float(dt.max()))
     return pos.view(2, -1), [keys[0].reshape(-1), keys[1].reshape(-1)], (h, w, a), walk
-
-
-def unpack_vector_field(field):
-    """fgcli.ops.fsr3.unpack_vector_field by the numba kernel."""
-    from fgcli.ops import fsr3 as FS
-
-    if not isinstance(field, torch.Tensor) or field.dim() != 3 or field.shape[0] != 2 or \
-            field.device.type != "cpu" or field.dtype not in (torch.int64, torch.uint32) or \
-            2 * (field.shape[1] + 2) * (field.shape[2] + 2) >= 2 ** 31:  # (32-bit indices)
-        return FS.unpack_vector_field(field)
-    from fgcli.kernels.field import unpack_kernel
-
-    h, w = field.shape[-2:]
-    vec, prio = _empty(2, h, w), _empty(1, h, w, dtype=torch.int64)
-    valid = _empty(1, h, w, dtype=torch.bool)
-    src, o = _padded_base(field)
-    unpack_kernel(_a(field) if src is None else src, o, vec.numpy(), prio.numpy()[0],
-                  valid.numpy()[0])
-    return vec, prio, valid
 
 
 def sample_flow_field(field, h, w, block=8):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, KERNEL, sval_b
+from fgcli.kernels._common import F32, INF, INLINE, KERNEL, sval_b
 from fgcli.kernels._intrin import fma
 from fgcli.kernels.warp import _grid_coords
 
@@ -47,6 +47,32 @@ def pool2_kernel(src, dst):
                 dst[k, oy, wf] = (F32(0.0) + src[k, y0, w - 1]) / F32(1.0)
 
 
+@njit(**INLINE)
+def _pool_rows(pr, nr, w, lev1, k, q):
+    """lev1[k, q, :] = pool2_kernel of the level-0 rows pr[0:nr] (nr = 2, or 1 at an odd
+    height's last row): the same sums in the same order."""
+    w2 = lev1.shape[2]
+    wf = w // 2
+    if nr == 2:
+        for ox in range(wf):
+            s = F32(0.0) + pr[0, 2 * ox]
+            s += pr[0, 2 * ox + 1]
+            s += pr[1, 2 * ox]
+            s += pr[1, 2 * ox + 1]
+            lev1[k, q, ox] = s / F32(4.0)
+        if wf < w2:
+            s = F32(0.0) + pr[0, w - 1]
+            s += pr[1, w - 1]
+            lev1[k, q, wf] = s / F32(2.0)
+    else:
+        for ox in range(wf):
+            s = F32(0.0) + pr[0, 2 * ox]
+            s += pr[0, 2 * ox + 1]
+            lev1[k, q, ox] = s / F32(2.0)
+        if wf < w2:
+            lev1[k, q, wf] = (F32(0.0) + pr[0, w - 1]) / F32(1.0)
+
+
 @njit(**KERNEL)
 def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh):
     """fgcli.ops.pyramid.pyramid_inpaint's dense part in one pass, level 0 never stored:
@@ -58,8 +84,6 @@ def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh)
     (~holes).float())."""
     c, h, w = values.shape
     h2 = lev1.shape[1]
-    w2 = lev1.shape[2]
-    wf = w // 2
     for pq in prange(h2):
         q = np.int64(pq)
         y0 = 2 * q
@@ -89,38 +113,7 @@ def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh)
                 else:
                     for x in range(w):
                         pr[r, x] = wr[r, x]
-            if nr == 2:
-                for ox in range(wf):
-                    s = F32(0.0) + pr[0, 2 * ox]
-                    s += pr[0, 2 * ox + 1]
-                    s += pr[1, 2 * ox]
-                    s += pr[1, 2 * ox + 1]
-                    lev1[k, q, ox] = s / F32(4.0)
-                if wf < w2:
-                    s = F32(0.0) + pr[0, w - 1]
-                    s += pr[1, w - 1]
-                    lev1[k, q, wf] = s / F32(2.0)
-            else:
-                for ox in range(wf):
-                    s = F32(0.0) + pr[0, 2 * ox]
-                    s += pr[0, 2 * ox + 1]
-                    lev1[k, q, ox] = s / F32(2.0)
-                if wf < w2:
-                    lev1[k, q, wf] = (F32(0.0) + pr[0, w - 1]) / F32(1.0)
-
-
-@njit(**KERNEL)
-def field_weight_kernel(prio, valid, wgt, holes):
-    """fgcli.ops.fsr3.fill_vector_field's inputs to the inpainting in one pass: wgt =
-    float32(prio) / 65535 * valid, holes = not valid (prio (H, W) int64, valid and holes
-    (H, W) uint8)."""
-    h, w = wgt.shape
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            v = valid[y, x] != U0
-            wgt[y, x] = (F32(prio[y, x]) / F32(65535.0)) * (F32(1.0) if v else F32(0.0))
-            holes[y, x] = U0 if v else U1
+            _pool_rows(pr, nr, w, lev1, k, q)
 
 
 @njit(**KERNEL)

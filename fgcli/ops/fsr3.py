@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from fgcli.ops._util import (check_alpha, check_same, check_tensor, reads_back,
+from fgcli.ops._util import (all_set, check_alpha, check_same, check_tensor, reads_back,
                              sanitize_depth, sanitize_mv, sanitize_values)
 from fgcli.ops.color import luminance
 from fgcli.ops.pyramid import pyramid_inpaint
@@ -314,6 +314,17 @@ def fill_vector_field(vec: torch.Tensor, priority: torch.Tensor, valid: torch.Te
     wgt = priority.to(torch.float32) / 65535.0 * valid
     out, filled = (inpaint or pyramid_inpaint)(vec, wgt, ~valid, mode="first", pool=pool)
     return out, filled
+
+
+def fill_packed_field(field: torch.Tensor):
+    """A packed vector field's vectors with its unwritten texels inpainted: (vec (2, H, W),
+    valid (1, H, W) bool: written). unpack_vector_field, then fill_vector_field unless
+    every texel was written (on the GPU, which does not read the mask back: always)."""
+    vec, prio, valid = unpack_vector_field(field)
+    if reads_back(valid) and all_set(valid):
+        return vec, valid
+    out, _ = fill_vector_field(vec, prio, valid)
+    return out, valid
 
 
 # ----------------------------------------------------------------------------- optical flow

@@ -95,11 +95,7 @@ class FSR3FieldFill(Stage):
 
     def run(self, ctx):
         from fgcli.kernels import op
-        from fgcli.ops._util import all_set, reads_back
-        vec, prio, valid = op("unpack_vector_field", ctx)(ctx["game_field"])
-        if reads_back(valid) and all_set(valid):  # (the GPU fills: no holes, no change)
-            return {"game_mv": vec, "game_holes": ~valid}
-        out, _ = op("fill_vector_field", ctx)(vec, prio, valid)
+        out, valid = op("fill_packed_field", ctx)(ctx["game_field"])
         return {"game_mv": out, "game_holes": ~valid}
 
 
@@ -139,7 +135,6 @@ class FSR3OpticalFlow(Stage):
     )
 
     def run(self, ctx):
-        from fgcli.ops._util import all_set, reads_back
         from fgcli.kernels import op
         from fgcli.ops.fsr3 import (dis_flow, flow_vector_field, magnitude_priority,
                                     upsample_block_flow)
@@ -178,10 +173,7 @@ class FSR3OpticalFlow(Stage):
         if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
             f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
-        vec, prio, valid = op("unpack_vector_field", ctx)(field)
-        if not reads_back(valid) or not all_set(valid):
-            vec, _ = op("fill_vector_field", ctx)(vec, prio, valid)
-        return {"of_mv": vec}
+        return {"of_mv": op("fill_packed_field", ctx)(field)[0]}
 
 
 @register
