@@ -727,9 +727,11 @@ def sample_flow_field(field: torch.Tensor, h: int, w: int, block: int = 8) -> to
 
 
 def upsample_block_flow(flow: torch.Tensor, h: int, w: int, block: int = 8) -> torch.Tensor:
-    """Each pixel takes its block's vector: (2, nby, nbx) -> (2, h, w)."""
-    up = flow.repeat_interleave(block, 1).repeat_interleave(block, 2)
-    return up[:, :h, :w].contiguous()
+    """Each pixel takes its block's vector: (C, nby, nbx) -> (C, h, w). (One broadcast
+    copy: two repeat_interleave calls took 1.6 ms for the flow and its priority at 1080p.)"""
+    c, nby, nbx = flow.shape
+    up = flow[:, :, None, :, None].expand(c, nby, block, nbx, block)
+    return up.reshape(c, nby * block, nbx * block)[:, :h, :w].contiguous()
 
 
 # ----------------------------------------------------------------------------- masks
