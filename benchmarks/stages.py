@@ -2,12 +2,16 @@
 
     python benchmarks/stages.py [--size 1920x1080] [--repeat 7] [--pipelines mob-fgsr,...]
                                 [--backends torch,numba] [--sequence] [--json FILE]
+                                [--input FOLDER [--frames RANGE]]
 
 Frames come from the bundled `blade` scene rendered at the benchmark size (fast movers,
 disocclusions: the expensive case). By default every generated frame comes from the same
 pair with no state (each as a sequence's first frame); `--sequence` generates from
 consecutive pairs with the run's state carried over, the steady state `fgen` reaches on a
-sequence (GFFE's history and background layers, FSR 3's memoised luminance). Prints median ms per stage and per generated frame,
+sequence (GFFE's history and background layers, FSR 3's memoised luminance). `--input`
+takes the frames from an EXR sequence instead (any layout fgen reads: real renders, whose
+motion is larger and less regular than the scene's; `--size` is then the footage's).
+Prints median ms per stage and per generated frame,
 EXR read/write times separately, and every figure as a ratio to a reference measured in the
 same run (a plain copy of one frame's color+depth+mv tensors, copy_ms), so figures compare
 across machines. Both backends (torch reference ops, numba kernels) run interleaved in one
@@ -64,6 +68,11 @@ def main():
                          "layers, FSR 3's memoised luminance); the first pair (empty "
                          "history) is the warm-up. Default: one pair, no state (each frame "
                          "as a sequence's first)")
+    ap.add_argument("--input", default=None, metavar="FOLDER",
+                    help="frames from this EXR sequence (its first frames, or --frames) "
+                         "instead of the rendered scene")
+    ap.add_argument("--frames", default=None, metavar="RANGE",
+                    help="with --input: the frames to use, oiiotool style (1-3, 1001-1010)")
     ap.add_argument("--json", default=None, metavar="FILE",
                     help="also write the figures as JSON: {copy_ms, pipelines: {name: {mode: "
                          "{ms_per_frame, x_copy, stages, backends: {torch: ..., numba: ...}}}}}")
@@ -83,23 +92,39 @@ def main():
     sync = torch.cuda.synchronize if cuda else None
     if args.threads:
         torch.set_num_threads(args.threads)
-    W, H = (int(v) for v in args.size.lower().split("x"))
-    # render at 1/4 size and upscale (nearest; vectors x4): same motion structure, fast
-    scene = load_scene(args.scene, size=(W // 4, H // 4))
-    t0 = time.perf_counter()
-    times = ([(2.0 + 0.5 * i, 1.0 + 0.5 * i) for i in range(args.repeat + 2)] if args.sequence
-             else [(3.0, 2.0), (4.0, 3.0)])
-    small = [render(scene, t, tp, spp=2) for t, tp in times]
-    render_ms = (time.perf_counter() - t0) * 1000 / len(small)
+    n_frames = args.repeat + 2 if args.sequence else 2
+    if args.input:
+        from fgcli.io.reader import SequenceReader
 
-    def up(f):
-        def u(x, k=1.0):
-            return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
-                         normal=None, albedo=None, roughness=None, alpha=None)
+        reader = SequenceReader(args.input, frames=args.frames)  # (every field present)
+        if len(reader.numbers) < n_frames:
+            sys.exit(f"--input: {n_frames} frames needed, {len(reader.numbers)} selected")
+        seq = [reader.read(n).replace(normal=None, albedo=None, roughness=None, alpha=None)
+               for n in reader.numbers[:n_frames]]
+        W, H = reader.width, reader.height
+        source = (f"frames {reader.numbers[0]}-{reader.numbers[n_frames - 1]} of "
+                  f"{args.input} ({reader.info.layout} layout)")
+    else:
+        W, H = (int(v) for v in args.size.lower().split("x"))
+        # render at 1/4 size and upscale (nearest; vectors x4): same motion structure, fast
+        scene = load_scene(args.scene, size=(W // 4, H // 4))
+        t0 = time.perf_counter()
+        times = ([(2.0 + 0.5 * i, 1.0 + 0.5 * i) for i in range(args.repeat + 2)]
+                 if args.sequence else [(3.0, 2.0), (4.0, 3.0)])
+        small = [render(scene, t, tp, spp=2) for t, tp in times]
+        render_ms = (time.perf_counter() - t0) * 1000 / len(small)
 
-    seq = [up(f).replace(number=i) for i, f in enumerate(small)]  # (GFFE tracks once per
-    host1 = seq[1]                                                # rendered frame number)
+        def up(f):
+            def u(x, k=1.0):
+                return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
+            return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
+                             normal=None, albedo=None, roughness=None, alpha=None)
+
+        # (GFFE tracks once per rendered frame number)
+        seq = [up(f).replace(number=i) for i, f in enumerate(small)]
+        source = (f"frames from {os.path.basename(args.scene)} rendered at 1/4 size and "
+                  f"upscaled (render {render_ms:.0f} ms/frame, not counted)")
+    host1 = seq[1]
     if cuda:
         seq = [f.to(dev) for f in seq]
         torch.cuda.synchronize()
@@ -107,9 +132,7 @@ def main():
     where = (f"{torch.cuda.get_device_name(dev)}" if cuda else
              f"{torch.get_num_threads()} threads")
     print(f"# {W}x{H}, torch {torch.__version__}, {where}; "
-          f"{'a sequence (state carried), ' if args.sequence else ''}frames from "
-          f"{os.path.basename(args.scene)} rendered at 1/4 size and upscaled "
-          f"(render {render_ms:.0f} ms/frame, not counted)")
+          f"{'a sequence (state carried), ' if args.sequence else ''}{source}")
 
     def copy_frame():
         out = (f1.color.clone(), f1.depth.clone(), f1.mv.clone())
@@ -174,7 +197,7 @@ def main():
     from fgcli.kernels import resolve
 
     backends = list(dict.fromkeys(resolve(b, dev) for b in backends))  # CUDA: torch only
-    result = {"size": [W, H], "sequence": bool(args.sequence),
+    result = {"size": [W, H], "sequence": bool(args.sequence), "frames": source,
               "threads": torch.get_num_threads(), "torch": torch.__version__,
               "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
