@@ -139,7 +139,10 @@ def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1, sb0, sb
     buf0 / buf1 themselves, the second into sb0 / sb1 (zeroed here), which
     field_merge_kernel then takes the maxima of (their order does not matter: the serial
     walk's result). The first thread's writes never change a flag the second reads: a
-    secondary entry (below 2**31) only replaces a smaller one."""
+    secondary entry (below 2**31) only replaces a smaller one. The entries are written as
+    unconditional max stores (no data-dependent branch: 26 -> 20 ms on Nuke-layout
+    footage with 3x the scene's motion, where the walks are long; the same on the
+    scene); the hit count and the step's exits stay branches (branchless, 29 ms)."""
     w2 = w + 2
     for pt in prange(2):
         t = np.int64(pt)
@@ -176,10 +179,8 @@ def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1, sb0, sb
                         hits += 1
                     if hits > 3:
                         continue
-                    if a0 > s0[q]:
-                        s0[q] = a0
-                    if a1 > s1[q]:
-                        s1[q] = a1
+                    s0[q] = max(s0[q], a0)
+                    s1[q] = max(s1[q], a1)
 
 
 @njit(**KERNEL)
