@@ -149,8 +149,9 @@ def _host_features() -> list[str]:
 
 # x86-64 with SSE4.1 (every x86-64 CPU since ~2008): sad_search8 can be compiled; with
 # AVX2 (since ~2013) it takes two block rows per instruction
-HAVE_MPSADBW = "+sse4.1" in _host_features()
-HAVE_AVX2 = HAVE_MPSADBW and "+avx2" in _host_features()
+_FEATURES = _host_features()
+HAVE_MPSADBW = "+sse4.1" in _FEATURES
+HAVE_AVX2 = HAVE_MPSADBW and "+avx2" in _FEATURES
 
 
 def _sad_search_typing(win, cur, order):

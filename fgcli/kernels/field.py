@@ -13,12 +13,10 @@ from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
 from fgcli.kernels._intrin import ld32, mad32, umax16
-from fgcli.kernels.pyramid import _pool_rows
+from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
 
 _PRIMARY = np.uint32(1 << 31)
-U0 = np.uint8(0)
-U1 = np.uint8(1)
 
 
 @njit(**INLINE)

@@ -13,7 +13,8 @@ colour-agreement priority (5 bits)``. fgen stores the full frame-1 -> frame-0 ve
 (FSR 3 stores 0.5 v; same thing at alpha = 0.5). A field entry of 0 means "not written".
 
 Passes (ops below): reconstruct_depths, vector_field (game / optical-flow field),
-unpack_vector_field + fill_vector_field (pyramid inpainting, fgcli.ops.pyramid),
+unpack_vector_field + fill_vector_field (pyramid inpainting, fgcli.ops.pyramid; both
+in one op: fill_packed_field),
 luma8, block_flow / dis_flow (optical flow), disocclusion_masks, interpolate_fsr3,
 pyramid_inpaint (colour).
 """
@@ -161,8 +162,7 @@ def depth_priority(depth: torch.Tensor) -> torch.Tensor:
     depth_priority_table: no float32 pow); +inf (sky) -> 1, 0 -> 1023. int64, any
     shape."""
     d = sanitize_depth(depth)
-    base, thr, b0 = (torch.from_numpy(t).to(d.device) if isinstance(t, np.ndarray) else t
-                     for t in depth_priority_table())
+    base, thr, b0 = _table_on(depth_priority_table, d.device)
     i = ((d.view(torch.int32) >> DEPTH_SHIFT) - b0).clamp_(0, base.numel() - 1).long()
     step = torch.where(d > 0.0, base[i] + (d >= thr[i]).float(), 0.0)
     return 1023 - step.to(torch.int64)
@@ -338,8 +338,8 @@ def step_table(f, hi_bits: int, steps: int, b0: int, b1: int, shift: int):
     patterns). Bucket i holds the float32s whose bits >> shift are b0 + i (i < n, the last
     bucket b1): base[i] = the number of T_j at or below its first value, thr[i] = the one
     T_j inside it (NaN when none: y >= NaN is false for every y, +inf too; more than one
-    never happens, asserted). So for y in
-    the buckets' range f(y) = base[i] + (y >= thr[i]), exactly as the float64 f decides,
+    never happens, asserted). So for y in the buckets' range f(y) = base[i] + (y >=
+    thr[i]), exactly as the float64 f decides,
     with no float32 pow (which rounds differently near a step, and torch's vectorised
     and scalar pow differ there too). Values below bucket 0 read it (callers check that
     no T_j lies below, except where they handle the values themselves)."""
@@ -381,6 +381,14 @@ def luma8_table() -> tuple[np.ndarray, np.ndarray, int]:
     return base, thr, b0
 
 
+@functools.lru_cache(maxsize=None)
+def _table_on(table, device) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """A step table's (base, thr) as tensors on ``device`` (made once per device: on the
+    GPU not uploaded again every frame), and its first bucket."""
+    base, thr, b0 = table()
+    return torch.from_numpy(base).to(device), torch.from_numpy(thr).to(device), b0
+
+
 def luma8(color: torch.Tensor) -> torch.Tensor:
     """8-bit display luminance (FfxOpticalFlow input): 255 sRGB(clip(Y)) rounded to nearest
     (exactly, by luma8_table: a float32 pow rounds differently near k + 1/2, and torch's
@@ -389,8 +397,7 @@ def luma8(color: torch.Tensor) -> torch.Tensor:
     color = check_tensor(color, "color", 3, allow_batch=False)
     y = luminance(sanitize_values(color))
     y = torch.nan_to_num(y, nan=0.0, posinf=1.0, neginf=0.0).clamp_(0.0, 1.0)
-    base, thr, b0 = (torch.from_numpy(t).to(y.device) if isinstance(t, np.ndarray) else t
-                     for t in luma8_table())
+    base, thr, b0 = _table_on(luma8_table, y.device)
     i = ((y.view(torch.int32) >> LUMA8_SHIFT) - b0).clamp_(0, base.numel() - 1).long()
     return base[i] + (y >= thr[i]).float()
 
