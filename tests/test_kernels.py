@@ -548,6 +548,135 @@ def test_mpsadbw_block_search_equals_the_portable_kernel(monkeypatch):
                 assert np.array_equal(a, b), (h, w)
 
 
+def _warp_window_cases(h, w, seed):
+    """Flows for the warp's 16-lane fetches: smooth (windows of two and three rows),
+    large random (gathered), zero (the exact case), past every edge, NaN / inf / huge."""
+    g = torch.Generator().manual_seed(seed)
+    yy, xx = torch.meshgrid(torch.arange(h, dtype=torch.float32),
+                            torch.arange(w, dtype=torch.float32), indexing="ij")
+    smooth = torch.stack([3.3 + 5 * torch.sin(yy * 0.05 + xx * 0.01),
+                          -2.6 + 1.7 * torch.cos(xx * 0.043)])
+    rough = torch.randn(2, h, w, generator=g) * 40.0
+    edges = torch.stack([(xx - w / 2) * 0.3, (yy - h / 2) * 0.3])  # zoom: off-screen taps
+    bad = smooth.clone()
+    bad[0, ::7, ::5] = NAN
+    bad[1, 1::6, ::3] = INF
+    bad[0, 2::9] = -3e7
+    zero = smooth.clone()
+    zero[:, : h // 2, : w // 2] = 0.0
+    return [smooth, rough, edges, bad, zero]
+
+
+def test_warp_window_fetches_equal_the_gathers():
+    """AVX-512: the mob-fgsr warp fetching its taps 16 pixels at a time from windows of
+    source rows (fgcli.kernels._intrin.bilinear16x3, nearest16) gives the per-pixel
+    gathering kernel's values bit for bit (and so the reference's): widths that are and
+    are not a multiple of 16, narrower than the 32-column window, one and two rows; colour
+    with NaN / +-inf / 65504 (the sanitising path) and NaN / inf depth; every fetch path
+    taken (windows of two and three rows, gathers)."""
+    import numpy as np
+
+    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels.ops import _grid
+    from fgcli.kernels.warp import warp_pixels_kernel, warp_window_kernel
+
+    if not HAVE_AVX512:
+        pytest.skip("no AVX-512 (the gathering kernel runs instead)")
+    for h, w in ((45, 96), (37, 53), (9, 40), (20, 17), (2, 70), (1, 33), (30, 31)):
+        f = random_frames(h, w, h * w)
+        f["c1"][0, ::5, ::3] = NAN
+        f["c1"][1, 2::7] = INF
+        f["c0"][2, :, ::4] = -INF
+        f["c0"][1, 1::3] = 65504.0
+        f["d1"][0, ::4, ::5] = NAN
+        gxn, gyn, kx, ky = _grid(h, w)
+        flows = _warp_window_cases(h, w, w)
+        for i, to1 in enumerate(flows):
+            to0 = flows[(i + 1) % len(flows)]
+            outs = []
+            for kern in (warp_pixels_kernel, warp_window_kernel):
+                o = [np.full((3, h, w), 7.0, np.float32), np.full((h, w), 7.0, np.float32),
+                     np.zeros((h, w), np.bool_)] * 2
+                o = [a.copy() for a in o]
+                kern(f["c1"].numpy(), f["d1"][0].numpy(), to1.numpy(), f["c0"].numpy(),
+                     f["d0"][0].numpy(), to0.numpy(), True, gxn, gyn, kx, ky, *o)
+                outs.append(o)
+            for a, b in zip(*outs):
+                assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), (h, w, i)
+
+
+def test_window_fetch_intrinsics():
+    """bilinear16x3 and nearest16 against a per-lane loop of the scalar helpers: random
+    taps (gathered), taps within 32 columns of two and three rows (windows), the last
+    column and row, NaN / +-inf / huge values (sanitised only in the planes that have
+    them), zero-flow lanes; the returned fetch path covers all three."""
+    import numpy as np
+    from numba import njit
+
+    from fgcli.kernels._common import INF as KINF, sval_b
+    from fgcli.kernels._intrin import HAVE_AVX512, fma
+
+    if not HAVE_AVX512:
+        pytest.skip("no AVX-512")
+    from fgcli.kernels._intrin import bilinear16x3, nearest16
+
+    @njit
+    def run(img, w, h, XA, XB, YA, YB, WT, Z, out, dout, cy):
+        paths = np.zeros(XA.shape[0] // 16 * 2, np.int32)
+        for b in range(XA.shape[0] // 16):
+            paths[2 * b] = bilinear16x3(img, np.int32(h * w), np.int32(w), np.int32(h), XA, XB,
+                                        YA, YB, WT, Z, np.int32(16 * b), out, np.int32(cy * w))
+            paths[2 * b + 1] = nearest16(img, np.int32(w), np.int32(h), XA, YA,
+                                         np.int32(16 * b), dout, np.int32(0))
+        return paths
+
+    @njit
+    def ref(img, w, XA, XB, YA, YB, WT, Z, out, dout, cy):
+        for x in range(XA.shape[0]):
+            for k in range(3):
+                t = [sval_b(img[k, YA[x], XA[x]]), sval_b(img[k, YA[x], XB[x]]),
+                     sval_b(img[k, YB[x], XA[x]]), sval_b(img[k, YB[x], XB[x]])]
+                r = fma(t[3], WT[3, x], fma(t[2], WT[2, x], fma(t[1], WT[1, x], t[0] * WT[0, x])))
+                out[k, cy, x] = sval_b(img[k, cy, x]) if Z[x] != 0 else r
+            v = img[0, YA[x], XA[x]]
+            dout[x] = KINF if v != v else v
+
+    rng = np.random.default_rng(7)
+    seen = set()
+    for trial in range(120):
+        h, w = (int(rng.integers(1, 9)), int(rng.integers(32, 90))) if trial % 5 else (5, 20)
+        img = rng.standard_normal((3, h, w)).astype(np.float32) * 3
+        if trial % 3 == 0:
+            img[rng.integers(0, 3), rng.integers(0, h), rng.integers(0, w)] = np.nan
+            img[rng.integers(0, 3), rng.integers(0, h), rng.integers(0, w)] = np.inf
+            img[rng.integers(0, 3), rng.integers(0, h), rng.integers(0, w)] = -np.inf
+            img[rng.integers(0, 3), rng.integers(0, h), rng.integers(0, w)] = 3e38
+        n = 48
+        kind = trial % 4
+        if kind == 0:  # anywhere: gathered
+            xa, ya = rng.integers(0, w, n), rng.integers(0, h, n)
+        else:  # within ~28 columns of 1, 2 or 3 rows
+            xa = np.clip(rng.integers(0, w) + rng.integers(-4, 24, n), 0, w - 1)
+            ya = np.clip(rng.integers(0, h) + rng.integers(0, kind, n), 0, h - 1)
+        xb, yb = np.minimum(xa + 1, w - 1), np.minimum(ya + 1, h - 1)
+        XA, XB, YA, YB = (a.astype(np.int32) for a in (xa, xb, ya, yb))
+        WT = rng.random((4, n)).astype(np.float32)
+        WT[1, xb == xa] = 0.0
+        WT[2, yb == ya] = 0.0
+        WT[3, (xb == xa) | (yb == ya)] = 0.0
+        Z = (rng.random(n) < 0.2).astype(np.int32)
+        cy = int(rng.integers(0, h))
+        if w < n:  # the centre row read at lanes 0..n-1: a frame at least n wide
+            continue
+        a, b = np.full((3, h, w), 9.0, np.float32), np.full((3, h, w), 9.0, np.float32)
+        da, db = np.zeros(n, np.float32), np.zeros(n, np.float32)
+        seen.update(run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy).tolist())
+        ref(img, w, XA, XB, YA, YB, WT, Z, b, db, cy)
+        assert np.array_equal(a.view(np.int32), b.view(np.int32)), trial
+        assert np.array_equal(da.view(np.int32), db.view(np.int32)), trial
+    assert seen == {0, 2, 3}, seen
+
+
 def _fsr3_inputs(h, w, seed):
     g = torch.Generator().manual_seed(seed)
     c0, c1 = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)

@@ -5,14 +5,18 @@ mob-fgsr warp of both frames in one pass, the mv-warp baseline in one pass.
 Speed: the per-pixel body is written without branches (every choice a select: the
 sanitising rules, the border taps, the zero-flow exact case), so LLVM vectorises the row
 loop with AVX2/AVX-512 gathers; a branch in the body (even a never-taken one) halved the
-speed at 1080p."""
+speed at 1080p. With AVX-512 the mob-fgsr warp fetches its taps 16 pixels at a time from
+windows of source rows instead (fgcli.kernels._intrin.bilinear16x3; no gathers where the
+flow is smooth): per row, one vectorised pass works out the taps and weights into row
+buffers, then one intrinsic call per 16 pixels reads, weights and stores them."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sflow_b, smv_b, sval_b
-from fgcli.kernels._intrin import fma, ld32, ld_pair, mad32
+from fgcli.kernels._intrin import (HAVE_AVX512, bilinear16x3, fma, ld32, ld_pair, mad32,
+                                   nearest16)
 
 I32 = np.int32
 
@@ -131,10 +135,12 @@ def _warp_px(c, d, to, s, sd, v, x, y, oy, xf, yf, lo_y, hi_y, gxn_x, gyy, kx, k
 
 
 @njit(**KERNEL)
-def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0, v0):
+def warp_pixels_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0,
+                       v0):
     """Mob-FGSR warp stage (3-channel colour): colour (bilinear) and depth (nearest) of
     frame 1 along to1 and, when ``two``, of frame 0 along to0, row by row. C-contiguous
-    colour and depth, flat_ok(h, w, 3)."""
+    colour and depth, flat_ok(h, w, 3). (warp_kernel: this one, or warp_window_kernel
+    where the CPU has AVX-512.)"""
     h, w = d1.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -156,6 +162,96 @@ def warp_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0
             for x in range(w):
                 _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
                          gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+
+
+@njit(**INLINE)
+def _taps_px(to, v, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB,
+             YA, YB, WT, Z, JX, JY):
+    """_warp_px's coordinates at pixel x into row buffers: the valid flag (into v), the
+    zero-flow flag Z, the taps' columns XA, XB and rows YA, YB (x1 = x0 and y1 = y0 at the
+    last column / row, where their weight is 0: the values _flat_coords' pair loads read),
+    the weights WT (4, W) and the nearest depth's pixel JX, JY. (Flags as int32: a bool
+    variable here would cost the loop its vectorisation; see fgcli.kernels.blend.)"""
+    rx = to[0, y, x]
+    ry = to[1, y, x]
+    v[y, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    fx = sflow_b(rx)
+    fy = sflow_b(ry)
+    Z[x] = I32(1) if (fx == F32(0.0)) & (fy == F32(0.0)) else I32(0)
+    x0f, y0f, tx, ty, e, s = _unnormalise(fma(fx, kx, gxn_x), fma(fy, ky, gyy), hw, hh, wm1,
+                                          hm1)
+    x0 = I32(x0f)
+    y0 = I32(y0f)
+    xi = I32(1) if x0 + I32(1) < w else I32(0)
+    yi = I32(1) if y0 + I32(1) < h else I32(0)
+    XA[x] = x0
+    XB[x] = x0 + xi
+    YA[x] = y0
+    YB[x] = y0 + yi
+    WT[0, x] = s * e
+    WT[1, x] = s * tx if xi != 0 else F32(0.0)
+    WT[2, x] = ty * e if yi != 0 else F32(0.0)
+    WT[3, x] = ty * tx if (xi & yi) != 0 else F32(0.0)
+    JX[x] = I32(clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1))
+    JY[x] = I32(clamp_b(np.floor(fy + (F32(y) + F32(0.5))), F32(0.0), hm1))
+
+
+@njit(**KERNEL)
+def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0,
+                       v0):
+    """warp_pixels_kernel with the taps fetched 16 pixels at a time
+    (fgcli.kernels._intrin.bilinear16x3 and nearest16: AVX-512 only); the last w % 16
+    pixels of a row per pixel. The same values, bit for bit."""
+    h, w = d1.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    nb = w // 16
+    for py in prange(h):
+        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        ro = I32(y * w)
+        # (row buffers; the arrays go to the intrinsics whole: a reshaped view made here
+        # would count as an alias and cost every loop its vectorisation)
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        JX = np.empty(w, dtype=np.int32)
+        JY = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
+        for x in range(w):
+            _taps_px(to1, v1, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
+                     w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+        for b in range(nb):
+            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), s1, ro)
+            nearest16(d1, w32, h32, JX, JY, I32(16 * b), sd1, ro)
+        for x in range(16 * nb, w):
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+                     kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+        if two:
+            for x in range(w):
+                _taps_px(to0, v0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                         hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+            for b in range(nb):
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), s0, ro)
+                nearest16(d0, w32, h32, JX, JY, I32(16 * b), sd0, ro)
+            for x in range(16 * nb, w):
+                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+
+
+# the mob-fgsr warp: 16-lane window fetches where the CPU has AVX-512 (numba's cache keys
+# compiled code by CPU, so a cache never carries one machine's choice to another)
+warp_kernel = warp_window_kernel if HAVE_AVX512 else warp_pixels_kernel
 
 
 @njit(**KERNEL)
