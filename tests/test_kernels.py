@@ -625,7 +625,8 @@ def test_window_fetch_intrinsics():
         paths = np.zeros(XA.shape[0] // 16 * 2, np.int32)
         for b in range(XA.shape[0] // 16):
             paths[2 * b] = bilinear16x3(img, np.int32(h * w), np.int32(w), np.int32(h), XA, XB,
-                                        YA, YB, WT, Z, np.int32(16 * b), out, np.int32(cy * w))
+                                        YA, YB, WT, Z, np.int32(16 * b), np.int32(cy * w), out,
+                                        np.int32(out.shape[1]), np.int32(0))
             paths[2 * b + 1] = nearest16(img, np.int32(w), np.int32(h), XA, YA,
                                          np.int32(16 * b), dout, np.int32(0))
         return paths
@@ -637,7 +638,7 @@ def test_window_fetch_intrinsics():
                 t = [sval_b(img[k, YA[x], XA[x]]), sval_b(img[k, YA[x], XB[x]]),
                      sval_b(img[k, YB[x], XA[x]]), sval_b(img[k, YB[x], XB[x]])]
                 r = fma(t[3], WT[3, x], fma(t[2], WT[2, x], fma(t[1], WT[1, x], t[0] * WT[0, x])))
-                out[k, cy, x] = sval_b(img[k, cy, x]) if Z[x] != 0 else r
+                out[k, x] = sval_b(img[k, cy, x]) if Z[x] != 0 else r
             v = img[0, YA[x], XA[x]]
             dout[x] = KINF if v != v else v
 
@@ -668,7 +669,7 @@ def test_window_fetch_intrinsics():
         cy = int(rng.integers(0, h))
         if w < n:  # the centre row read at lanes 0..n-1: a frame at least n wide
             continue
-        a, b = np.full((3, h, w), 9.0, np.float32), np.full((3, h, w), 9.0, np.float32)
+        a, b = np.full((3, n + 5), 9.0, np.float32), np.full((3, n + 5), 9.0, np.float32)
         da, db = np.zeros(n, np.float32), np.zeros(n, np.float32)
         seen.update(run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy).tolist())
         ref(img, w, XA, XB, YA, YB, WT, Z, b, db, cy)

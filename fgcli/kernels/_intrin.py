@@ -444,16 +444,17 @@ def _f32_arrays(*arrs):
 
 
 @intrinsic
-def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff):
+def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                 ooff):
     """Pixels j .. j + 15 of a row of grid_sample(bilinear) of a 3-plane image, as the
     warp kernels compute them (fgcli.kernels.warp._bil_pair): taps (XA, YA), (XB, YA),
     (XA, YB), (XB, YB) (1-D int32 row buffers, lanes j..j+15), each sanitised (sval_b),
     weighted by WT (C-contiguous float32 (4, n): nw, ne, sw, se) in the reference's FMA
     chain fma(se, ., fma(sw, ., fma(ne, ., nw * .))); where Z (int32 row buffer) is
-    non-zero, the sanitised pixel itself (img at coff + j + lane): the zero-flow case.
-    Planes p = 0, 1, 2 start at p * pst in img and in out (C-contiguous float32, flat int32
-    offsets); the results go to out at p * pst + coff + j. Returns the fetch path (2, 3:
-    window rows; 0: gathered).
+    non-zero, the sanitised pixel itself (img at p * pst + coff + j + lane): the zero-flow
+    case. Plane p = 0, 1, 2 of img starts at p * pst, rows of w (C-contiguous float32, flat
+    int32 offsets); its results go to out at p * opst + ooff + j (a frame's row, or a row
+    buffer). Returns the fetch path (2, 3: window rows; 0: gathered).
 
     When no tap or centre of a plane is NaN or infinite (checked on the 16 lanes: the sum
     of every v - v is not NaN), the sanitising selects are skipped (they would change
@@ -461,7 +462,7 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff)
     if not (_f32_arrays(img, WT, out) and _i32_arrays(XA, XB, YA, YB, Z)
             and WT.ndim == 2):
         return None
-    sig = types.int32(img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff)
+    sig = types.int32(img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst, ooff)
 
     def codegen(context, builder, sig, args):
         i32, v16i, v16f = _v16(builder)
@@ -471,7 +472,7 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff)
         fma = _fn(builder, "llvm.fma.v16f32", v16f, [v16f, v16f, v16f])
         any_ = _fn(builder, "llvm.vector.reduce.or.v16i1", ir.IntType(1),
                    [ir.VectorType(ir.IntType(1), 16)])
-        base, optr = arr(0).data, arr(11).data
+        base, optr = arr(0).data, arr(12).data
         pst, w, h, jj = sc(1), sc(2), sc(3), sc(10)
         xa, xb, ya, yb, z = (_vload(builder, arr(k).data, jj, v16i) for k in (4, 5, 6, 7, 9))
         wt = arr(8)
@@ -482,7 +483,7 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff)
         zm = builder.icmp_signed("!=", z, ir.Constant(v16i, [0] * 16))
         offs = [builder.mul(pst, ir.Constant(i32, p)) for p in range(3)]
         taps, path = _fetch16(builder, base, offs, w, h, xa, xb, ya, yb)
-        cj = builder.add(sc(12), jj)
+        cj, oj, opst = builder.add(sc(11), jj), builder.add(sc(14), jj), sc(13)
         for p in range(3):
             po = builder.add(offs[p], cj)
             vals = taps[p] + [_vload(builder, base, po, v16f)]
@@ -509,7 +510,7 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, out, coff)
             r = builder.phi(v16f)
             for blk in (bfast, bslow):
                 r.add_incoming(res[blk], blk)
-            _vstore(builder, r, optr, po)
+            _vstore(builder, r, optr, builder.add(builder.mul(opst, ir.Constant(i32, p)), oj))
         return path
 
     return sig, codegen

@@ -23,8 +23,12 @@ from numba import njit, prange
 from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
-from fgcli.kernels._intrin import ld_pair, mad32
-from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32
+from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x3, ld_pair, mad32
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32, bil_taps
+
+# the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
+# AVX-512; a module constant, so numba compiles only the branch this CPU runs)
+WINDOW16 = HAVE_AVX512
 
 
 @njit(**INLINE)
@@ -106,13 +110,19 @@ def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, 
 
 
 @njit(**INLINE)
+def _inside(rx, ry, xf, lo_y, hi_y, w):
+    """inside_mask of the flow (rx, ry) at pixel column xf (w int32)."""
+    return (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+
+
+@njit(**INLINE)
 def _sample(c, rx, ry, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h,
             hw32, out, ox):
     """backward_warp(c, flow)[:, y, x] (bilinear, border clamp; zero flow exact) into
     out[:, ox]; returns inside_mask of the flow (rx, ry are finite: sanitised vectors times
     a float32 scalar). w, h, hw32 = h * w: int32 (the taps are pair loads,
     fgcli.kernels.warp._bil_pair)."""
-    valid = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    valid = _inside(rx, ry, xf, lo_y, hi_y, w)
     zero = (rx == F32(0.0)) & (ry == F32(0.0))
     p, rs, xi, nw, ne, sw, se = _flat_coords(rx, ry, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h)
     for k in range(3):
@@ -160,6 +170,7 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
     w32 = I32(w)
     h32 = I32(h)
     hw32 = I32(h * w)
+    nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for py in prange(h):
@@ -172,14 +183,48 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
         C = np.empty((3, w), dtype=np.float32)
         in0 = np.empty(w, dtype=np.float32)
         in1 = np.empty(w, dtype=np.float32)
-        for x in range(w):
-            in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y,
-                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32,
-                                 h32, hw32, P, x))
-        for x in range(w):
-            in1[x] = F32(_sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y,
-                                 F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32,
-                                 h32, hw32, C, x))
+        if WINDOW16:  # taps into row buffers, then 16 pixels per fetch, the rest per pixel
+            # (bil_taps' row buffers, allocated here: unpacked from a helper's tuple they
+            # would count as aliases and no loop of the kernel would be vectorised)
+            XA = np.empty(w, dtype=np.int32)
+            XB = np.empty(w, dtype=np.int32)
+            YA = np.empty(w, dtype=np.int32)
+            YB = np.empty(w, dtype=np.int32)
+            WT = np.empty((4, w), dtype=np.float32)
+            Z = np.empty(w, dtype=np.int32)
+            for x in range(w):
+                rx = smv_b(vec[0, y, x]) * a
+                ry = smv_b(vec[1, y, x]) * a
+                in0[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                         YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), P, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(x),
+                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
+            for x in range(w):
+                rx = smv_b(vec[0, y, x]) * na
+                ry = smv_b(vec[1, y, x]) * na
+                in1[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                         YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), C, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(x),
+                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
+        else:
+            for x in range(w):
+                in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x,
+                                     y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                     hm1, w32, h32, hw32, P, x))
+            for x in range(w):
+                in1[x] = F32(_sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na,
+                                     x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
+                                     wm1, hm1, w32, h32, hw32, C, x))
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
             my = mask_cur[y, x] * in1[x]
@@ -209,6 +254,7 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
     w32 = I32(w)
     h32 = I32(h)
     hw32 = I32(h * w)
+    nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for py in prange(h):
@@ -219,14 +265,44 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
         hi_y = F32(h - 0.5) - yf
         Po = np.empty((3, w), dtype=np.float32)
         Co = np.empty((3, w), dtype=np.float32)
-        for x in range(w):
-            _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y, F32(x),
-                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, Po,
-                    x)
-        for x in range(w):
-            _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                    hw32, Co, x)
+        if WINDOW16:  # as interp_game_kernel
+            # (bil_taps' row buffers, allocated here: unpacked from a helper's tuple they
+            # would count as aliases and no loop of the kernel would be vectorised)
+            XA = np.empty(w, dtype=np.int32)
+            XB = np.empty(w, dtype=np.int32)
+            YA = np.empty(w, dtype=np.int32)
+            YB = np.empty(w, dtype=np.int32)
+            WT = np.empty((4, w), dtype=np.float32)
+            Z = np.empty(w, dtype=np.int32)
+            for x in range(w):
+                bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), Po, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
+                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, Po, x)
+            for x in range(w):
+                bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), Co, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
+                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, Co, x)
+        else:
+            for x in range(w):
+                _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
+                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, Po, x)
+            for x in range(w):
+                _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
+                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, Co, x)
         for x in range(w):
             s_of = _similarity(Po, Co, x, eps, eps2)
             b = S[y, x] / (eps if s_of < eps else s_of)

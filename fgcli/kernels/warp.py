@@ -165,18 +165,13 @@ def warp_pixels_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
 
 
 @njit(**INLINE)
-def _taps_px(to, v, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB,
-             YA, YB, WT, Z, JX, JY):
-    """_warp_px's coordinates at pixel x into row buffers: the valid flag (into v), the
-    zero-flow flag Z, the taps' columns XA, XB and rows YA, YB (x1 = x0 and y1 = y0 at the
-    last column / row, where their weight is 0: the values _flat_coords' pair loads read),
-    the weights WT (4, W) and the nearest depth's pixel JX, JY. (Flags as int32: a bool
-    variable here would cost the loop its vectorisation; see fgcli.kernels.blend.)"""
-    rx = to[0, y, x]
-    ry = to[1, y, x]
-    v[y, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
-    fx = sflow_b(rx)
-    fy = sflow_b(ry)
+def bil_taps(fx, fy, x, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB, YA, YB, WT, Z):
+    """_flat_coords for the 16-lane fetches (fgcli.kernels._intrin.bilinear16x3): the taps
+    of pixel x along the sanitised flow (fx, fy) into row buffers: columns XA, XB and rows
+    YA, YB (x1 = x0 and y1 = y0 at the last column / row, where their weight is 0: the
+    values the pair loads read), the weights WT (4, W) and the zero-flow flag Z. (Flags as
+    int32: a bool variable here would cost the loop its vectorisation; see
+    fgcli.kernels.blend.)"""
     Z[x] = I32(1) if (fx == F32(0.0)) & (fy == F32(0.0)) else I32(0)
     x0f, y0f, tx, ty, e, s = _unnormalise(fma(fx, kx, gxn_x), fma(fy, ky, gyy), hw, hh, wm1,
                                           hm1)
@@ -192,6 +187,19 @@ def _taps_px(to, v, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, 
     WT[1, x] = s * tx if xi != 0 else F32(0.0)
     WT[2, x] = ty * e if yi != 0 else F32(0.0)
     WT[3, x] = ty * tx if (xi & yi) != 0 else F32(0.0)
+
+
+@njit(**INLINE)
+def _taps_px(to, v, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB,
+             YA, YB, WT, Z, JX, JY):
+    """_warp_px's coordinates at pixel x into row buffers: the valid flag (into v), the
+    bilinear taps (bil_taps) and the nearest depth's pixel JX, JY."""
+    rx = to[0, y, x]
+    ry = to[1, y, x]
+    v[y, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    fx = sflow_b(rx)
+    fy = sflow_b(ry)
+    bil_taps(fx, fy, x, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB, YA, YB, WT, Z)
     JX[x] = I32(clamp_b(np.floor(fx + (xf + F32(0.5))), F32(0.0), wm1))
     JY[x] = I32(clamp_b(np.floor(fy + (F32(y) + F32(0.5))), F32(0.0), hm1))
 
@@ -232,7 +240,8 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
             _taps_px(to1, v1, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
                      w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
         for b in range(nb):
-            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), s1, ro)
+            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s1, hw32,
+                         ro)
             nearest16(d1, w32, h32, JX, JY, I32(16 * b), sd1, ro)
         for x in range(16 * nb, w):
             _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
@@ -242,7 +251,8 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
                 _taps_px(to0, v0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                          hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
             for b in range(nb):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), s0, ro)
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s0,
+                             hw32, ro)
                 nearest16(d0, w32, h32, JX, JY, I32(16 * b), sd0, ro)
             for x in range(16 * nb, w):
                 _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
