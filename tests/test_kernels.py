@@ -606,7 +606,7 @@ def test_warp_window_fetches_equal_the_gathers():
 
 
 def test_window_fetch_intrinsics():
-    """bilinear16x3 and nearest16 against a per-lane loop of the scalar helpers: random
+    """bilinear16x3, nearest16 and taps16 against a per-lane loop of the scalar helpers: random
     taps (gathered), taps within 32 columns of two and three rows (windows), the last
     column and row, NaN / +-inf / huge values (sanitised only in the planes that have
     them), zero-flow lanes; the returned fetch path covers all three."""
@@ -618,15 +618,17 @@ def test_window_fetch_intrinsics():
 
     if not HAVE_AVX512:
         pytest.skip("no AVX-512")
-    from fgcli.kernels._intrin import bilinear16x3, nearest16
+    from fgcli.kernels._intrin import bilinear16x3, nearest16, taps16
 
     @njit
-    def run(img, w, h, XA, XB, YA, YB, WT, Z, out, dout, cy):
+    def run(img, w, h, XA, XB, YA, YB, WT, Z, out, dout, cy, T):
         paths = np.zeros(XA.shape[0] // 16 * 2, np.int32)
         for b in range(XA.shape[0] // 16):
-            paths[2 * b] = bilinear16x3(img, np.int32(h * w), np.int32(w), np.int32(h), XA, XB,
-                                        YA, YB, WT, Z, np.int32(16 * b), np.int32(cy * w), out,
-                                        np.int32(out.shape[1]), np.int32(0))
+            t = taps16(img[1], np.int32(w), np.int32(h), XA, XB, YA, YB, np.int32(16 * b), T)
+            p = bilinear16x3(img, np.int32(h * w), np.int32(w), np.int32(h), XA, XB, YA, YB, WT,
+                             Z, np.int32(16 * b), np.int32(cy * w), out, np.int32(out.shape[1]),
+                             np.int32(0))
+            paths[2 * b] = p if t == p else -1  # (the same taps: the same path)
             paths[2 * b + 1] = nearest16(img, np.int32(w), np.int32(h), XA, YA,
                                          np.int32(16 * b), dout, np.int32(0))
         return paths
@@ -671,8 +673,11 @@ def test_window_fetch_intrinsics():
             continue
         a, b = np.full((3, n + 5), 9.0, np.float32), np.full((3, n + 5), 9.0, np.float32)
         da, db = np.zeros(n, np.float32), np.zeros(n, np.float32)
-        seen.update(run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy).tolist())
+        T = np.full((4, n), 5.0, np.float32)
+        seen.update(run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy, T).tolist())
         ref(img, w, XA, XB, YA, YB, WT, Z, b, db, cy)
+        taps = np.stack([img[1, ya, xa], img[1, ya, xb], img[1, yb, xa], img[1, yb, xb]])
+        assert np.array_equal(T.view(np.int32), taps.view(np.int32)), trial
         assert np.array_equal(a.view(np.int32), b.view(np.int32)), trial
         assert np.array_equal(da.view(np.int32), db.view(np.int32)), trial
     assert seen == {0, 2, 3}, seen

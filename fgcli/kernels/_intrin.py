@@ -542,3 +542,34 @@ def nearest16(typingctx, img, w, h, JX, JY, j, out, ooff):
         return path
 
     return sig, codegen
+
+
+@intrinsic
+def taps16(typingctx, img, w, h, XA, XB, YA, YB, j, T):
+    """T[:, j + lane] = the four taps img.flat[YA * w + XA], [YA * w + XB], [YB * w + XA],
+    [YB * w + XB] of lanes j .. j + 15, values as they are (1-D int32 row buffers:
+    0 <= XA <= XB < w, 0 <= YA <= YB < h; C-contiguous float32 img, one plane of rows of
+    w; C-contiguous float32 T (4, n)). Returns the fetch path as bilinear16x3. AVX-512 only
+    (HAVE_AVX512)."""
+    if not (_f32_arrays(img, T) and _i32_arrays(XA, XB, YA, YB) and T.ndim == 2):
+        return None
+    sig = types.int32(img, w, h, XA, XB, YA, YB, j, T)
+
+    def codegen(context, builder, sig, args):
+        i32, v16i, v16f = _v16(builder)
+        tys = sig.args
+        arr = lambda k: context.make_array(tys[k])(context, builder, args[k])  # noqa: E731
+        sc = lambda k: context.cast(builder, args[k], tys[k], types.int32)  # noqa: E731
+        w, h, jj = sc(1), sc(2), sc(7)
+        xa, xb, ya, yb = (_vload(builder, arr(k).data, jj, v16i) for k in (3, 4, 5, 6))
+        taps, path = _fetch16(builder, arr(0).data, [ir.Constant(i32, 0)], w, h, xa, xb, ya,
+                              yb)
+        t = arr(8)
+        tw = builder.lshr(builder.trunc(cgutils.unpack_tuple(builder, t.strides, 2)[0], i32),
+                          ir.Constant(i32, 2))
+        for k in range(4):
+            _vstore(builder, taps[0][k], t.data,
+                    builder.add(jj, builder.mul(tw, ir.Constant(i32, k))))
+        return path
+
+    return sig, codegen

@@ -23,7 +23,7 @@ from numba import njit, prange
 from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
-from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x3, ld_pair, mad32
+from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x3, ld_pair, mad32, taps16
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32, bil_taps
 
 # the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
@@ -80,6 +80,48 @@ def _tap_mask(d, x, y, zt, thr, w, h, wm1, hm1):
     return acc
 
 
+@njit(**INLINE)
+def _mask_taps(x, y, i, w, h, wm1, hm1, XA, XB, YA, YB):
+    """_tap_mask's taps at position (x, y) (the clamped columns and rows _row_pair reads)
+    into the row buffers of fgcli.kernels._intrin.taps16, at i."""
+    x0 = np.floor(clamp_b(x, F32(-2.0), F32(w + 1.0)))
+    y0 = np.floor(clamp_b(y, F32(-2.0), F32(h + 1.0)))
+    XA[i] = I32(clamp_b(x0, F32(0.0), wm1))
+    XB[i] = I32(clamp_b(x0 + F32(1.0), F32(0.0), wm1))
+    YA[i] = I32(clamp_b(y0, F32(0.0), hm1))
+    YB[i] = I32(clamp_b(y0 + F32(1.0), F32(0.0), hm1))
+
+
+@njit(**INLINE)
+def _tail_taps(d, x, XA, XB, YA, YB, T):
+    """taps16's four reads for one pixel (a row's last w % 16)."""
+    T[0, x] = d[YA[x], XA[x]]
+    T[1, x] = d[YA[x], XB[x]]
+    T[2, x] = d[YB[x], XA[x]]
+    T[3, x] = d[YB[x], XB[x]]
+
+
+@njit(**INLINE)
+def _tap_mask_t(T, i, x, y, zt, thr, w, h, wm1, hm1):
+    """_tap_mask with the four depths already fetched into T[:, i] (taps16)."""
+    x = clamp_b(x, F32(-2.0), F32(w + 1.0))
+    y = clamp_b(y, F32(-2.0), F32(h + 1.0))
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = x - x0
+    fy = y - y0
+    ex = F32(1.0) - fx
+    ey = F32(1.0) - fy
+    x1 = x0 + F32(1.0)
+    y1 = y0 + F32(1.0)
+    acc = F32(0.0)
+    acc += _tap(sdepth_b(T[0, i]), x0, y0, ex * ey, zt, thr, wm1, hm1)
+    acc += _tap(sdepth_b(T[1, i]), x1, y0, fx * ey, zt, thr, wm1, hm1)
+    acc += _tap(sdepth_b(T[2, i]), x0, y1, ex * fy, zt, thr, wm1, hm1)
+    acc += _tap(sdepth_b(T[3, i]), x1, y1, fx * fy, zt, thr, wm1, hm1)
+    return acc
+
+
 @njit(**KERNEL)
 def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc):
     """Both masks: toward the previous frame the taps of depth_prev at ``q + a v``, toward
@@ -91,22 +133,59 @@ def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, 
     hm1 = F32(h - 1)
     w32 = I32(w)
     h32 = I32(h)
+    nblk = w // 16
     for py in prange(h):
         y = np.int64(py)
         yf = F32(y)
-        for x in range(w):
-            vx = smv_b(vec[0, y, x])
-            vy = smv_b(vec[1, y, x])
-            zt = sdepth_b(depth_t[y, x])
-            acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32, wm1,
-                            hm1)
-            mp[y, x] = F32(acc >= threshold)
-        for x in range(w):
-            vx = smv_b(vec[0, y, x])
-            vy = smv_b(vec[1, y, x])
-            zt = sdepth_b(depth_t[y, x])
-            acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1, hm1)
-            mc[y, x] = F32(acc >= threshold)
+        if WINDOW16:  # the taps into row buffers, fetched 16 pixels at a time, then the sums
+            XA = np.empty(w, dtype=np.int32)
+            XB = np.empty(w, dtype=np.int32)
+            YA = np.empty(w, dtype=np.int32)
+            YB = np.empty(w, dtype=np.int32)
+            T = np.empty((4, w), dtype=np.float32)
+            for x in range(w):
+                _mask_taps(F32(x) + smv_b(vec[0, y, x]) * a, yf + smv_b(vec[1, y, x]) * a, x,
+                           w32, h32, wm1, hm1, XA, XB, YA, YB)
+            for blk in range(nblk):
+                taps16(depth_prev, w32, h32, XA, XB, YA, YB, I32(16 * blk), T)
+            for x in range(16 * nblk, w):
+                _tail_taps(depth_prev, x, XA, XB, YA, YB, T)
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                zt = sdepth_b(depth_t[y, x])
+                acc = _tap_mask_t(T, x, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32, wm1,
+                                  hm1)
+                mp[y, x] = F32(acc >= threshold)
+            for x in range(w):
+                _mask_taps(F32(x) - smv_b(vec[0, y, x]) * b, yf - smv_b(vec[1, y, x]) * b, x,
+                           w32, h32, wm1, hm1, XA, XB, YA, YB)
+            for blk in range(nblk):
+                taps16(depth1, w32, h32, XA, XB, YA, YB, I32(16 * blk), T)
+            for x in range(16 * nblk, w):
+                _tail_taps(depth1, x, XA, XB, YA, YB, T)
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                zt = sdepth_b(depth_t[y, x])
+                acc = _tap_mask_t(T, x, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
+                                  hm1)
+                mc[y, x] = F32(acc >= threshold)
+        else:
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                zt = sdepth_b(depth_t[y, x])
+                acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32,
+                                wm1, hm1)
+                mp[y, x] = F32(acc >= threshold)
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                zt = sdepth_b(depth_t[y, x])
+                acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
+                                hm1)
+                mc[y, x] = F32(acc >= threshold)
 
 
 @njit(**INLINE)
