@@ -17,8 +17,12 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
-from fgcli.kernels._intrin import atomic_min_i64, mad32
-from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
+from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, bilinear16x3, mad32
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
+
+# the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
+# AVX-512; a module constant, so numba compiles only the branch this CPU runs)
+WINDOW16 = HAVE_AVX512
 
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
 ZERO = np.float32(0.0)
@@ -69,8 +73,9 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
     Sparse selections (the fills select their holes, often 0-2 % of the pixels) skip the
     sampling: a run of SPAN pixels with no pixel selected copies base (or zeroes; nothing
     when ``inplace``: out is base itself); any other run computes every pixel with
-    selects. The flow outside the selection is never read there (the fills leave it
-    unwritten)."""
+    selects (with AVX-512, a run at least half selected fetches its taps 16 pixels at a
+    time: fgcli.kernels._intrin.bilinear16x3). The flow outside the selection is never
+    read in a skipped run (the fills leave it unwritten; a sampled run sanitises it)."""
     h, w = sel.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -79,32 +84,61 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
     w32 = I32(w)
     h32 = I32(h)
     hw32 = I32(h * w)
-    for py in prange(h):
-        y = np.int64(py)
-        gyy = gyn[y]
-        if want_f:
-            for x in range(w):
-                s = sel[y, x] != U0
-                b0 = fbase[0, y, x] if has_fbase else ZERO
-                b1 = fbase[1, y, x] if has_fbase else ZERO
-                fout[0, y, x] = flow[0, y, x] if s else b0
-                fout[1, y, x] = flow[1, y, x] if s else b1
-        for xs in range((w + SPAN - 1) // SPAN):
-            xa = np.int64(xs) * SPAN
-            n = min(SPAN, w - xa)
-            m = U0
-            for i in range(n):
-                m |= sel[y, xa + i]
-            if m == U0:
-                if not inplace:
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        if WINDOW16:  # (row buffers of bil_taps and bilinear16x3, one set per chunk of rows)
+            XA = np.empty(w, dtype=np.int32)
+            XB = np.empty(w, dtype=np.int32)
+            YA = np.empty(w, dtype=np.int32)
+            YB = np.empty(w, dtype=np.int32)
+            Z = np.empty(w, dtype=np.int32)
+            WT = np.empty((4, w), dtype=np.float32)
+            R = np.empty((3, w), dtype=np.float32)
+        for y in range(ya, yb):
+            gyy = gyn[y]
+            if want_f:
+                for x in range(w):
+                    s = sel[y, x] != U0
+                    b0 = fbase[0, y, x] if has_fbase else ZERO
+                    b1 = fbase[1, y, x] if has_fbase else ZERO
+                    fout[0, y, x] = flow[0, y, x] if s else b0
+                    fout[1, y, x] = flow[1, y, x] if s else b1
+            for xs in range((w + SPAN - 1) // SPAN):
+                xa = np.int64(xs) * SPAN
+                n = min(SPAN, w - xa)
+                m = np.int64(0)  # selected pixels in the run (sel is 0 / 1)
+                for i in range(n):
+                    m += np.int64(sel[y, xa + i])
+                if m == 0:
+                    if not inplace:
+                        for i in range(n):
+                            x = xa + i
+                            for k in range(3):
+                                out[k, y, x] = base[k, y, x] if has_base else ZERO
+                elif WINDOW16 and 2 * m >= n:  # mostly selected: the run's taps into row
+                    # buffers, 16 pixels per fetch, then the selects (a sparse run: per pixel)
                     for i in range(n):
                         x = xa + i
+                        bil_taps(sflow_b(flow[0, y, x]), sflow_b(flow[1, y, x]), x, gxn[x], gyy,
+                                 kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+                    for blk in range(n // 16):
+                        bilinear16x3(img, hw32, w32, h32, XA, XB, YA, YB, WT, Z,
+                                     I32(xa + 16 * blk), I32(y * w), R, w32, I32(0))
+                    for i in range(n // 16 * 16):
+                        x = xa + i
+                        s = sel[y, x] != U0
                         for k in range(3):
-                            out[k, y, x] = base[k, y, x] if has_base else ZERO
-            else:
-                for i in range(n):
-                    _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1,
-                               hm1, w32, h32, hw32, out, xa + i, y)
+                            b = base[k, y, x] if has_base else ZERO
+                            out[k, y, x] = R[k, x] if s else b
+                    for i in range(n // 16 * 16, n):  # (a row's last w % 16 pixels)
+                        _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
+                                   wm1, hm1, w32, h32, hw32, out, xa + i, y)
+                else:
+                    for i in range(n):
+                        _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
+                                   wm1, hm1, w32, h32, hw32, out, xa + i, y)
 
 
 # ----------------------------------------------------------------------------- warp
