@@ -573,7 +573,8 @@ def test_warp_window_fetches_equal_the_gathers():
     gathering kernel's values bit for bit (and so the reference's): widths that are and
     are not a multiple of 16, narrower than the 32-column window, one and two rows; colour
     with NaN / +-inf / 65504 (the sanitising path) and NaN / inf depth; every fetch path
-    taken (windows of two and three rows, gathers)."""
+    taken (windows of two and three rows, gathers). The 3x3 dilation's reads at the
+    winners (fetch16x2) against the reference on the same frames."""
     import numpy as np
 
     from fgcli.kernels._intrin import HAVE_AVX512
@@ -603,6 +604,12 @@ def test_warp_window_fetches_equal_the_gathers():
                 outs.append(o)
             for a, b in zip(*outs):
                 assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), (h, w, i)
+        # the 3x3 dilation reads the winner's vector the same way (fetch16x2)
+        mv = flows[1].clone()
+        mv[0, ::3, ::4] = NAN
+        mv[1, 1::5] = INF
+        same_result(f"dilate {h}x{w}", K.dilate_nearest_depth(f["d1"], mv, 1),
+                    R.dilate_nearest_depth(f["d1"], mv, 1))
 
 
 def test_window_fetch_intrinsics():

@@ -573,3 +573,32 @@ def taps16(typingctx, img, w, h, XA, XB, YA, YB, j, T):
         return path
 
     return sig, codegen
+
+
+@intrinsic
+def fetch16x2(typingctx, img, pst, w, h, JX, JY, j, T, toff, tst):
+    """T[p * tst + toff + j + lane] = img.flat[p * pst + JY * w + JX] for planes p = 0, 1 and
+    lanes j .. j + 15 (1-D int32 row buffers JX, JY: 0 <= JX < w, 0 <= JY < h;
+    C-contiguous float32 img and T, int32 offsets and strides): two planes' nearest reads
+    (a vector field at data-dependent pixels), values as they are. Returns the fetch path
+    as bilinear16x3. AVX-512 only (HAVE_AVX512)."""
+    if not (_f32_arrays(img, T) and _i32_arrays(JX, JY)):
+        return None
+    sig = types.int32(img, pst, w, h, JX, JY, j, T, toff, tst)
+
+    def codegen(context, builder, sig, args):
+        i32, v16i, v16f = _v16(builder)
+        tys = sig.args
+        arr = lambda k: context.make_array(tys[k])(context, builder, args[k])  # noqa: E731
+        sc = lambda k: context.cast(builder, args[k], tys[k], types.int32)  # noqa: E731
+        pst, w, h, jj, toff, tst = sc(1), sc(2), sc(3), sc(6), sc(8), sc(9)
+        jx, jy = (_vload(builder, arr(k).data, jj, v16i) for k in (4, 5))
+        taps, path = _fetch16(builder, arr(0).data, [ir.Constant(i32, 0), pst], w, h, jx, jx,
+                              jy, jy, ntaps=1)
+        o = builder.add(toff, jj)
+        for p in range(2):
+            _vstore(builder, taps[p][0], arr(7).data, builder.add(o, builder.mul(
+                tst, ir.Constant(i32, p))))
+        return path
+
+    return sig, codegen

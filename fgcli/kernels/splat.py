@@ -11,9 +11,10 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clamp_b,
                                    sdepth_b, smv_b)
-from fgcli.kernels._intrin import atomic_min_i64, fma, ld32, mad32
+from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, fetch16x2, fma, ld32, mad32
 
 I32 = np.int32
+WINDOW16 = HAVE_AVX512
 
 
 @njit(**KERNEL)
@@ -100,6 +101,10 @@ def dilate3_kernel(depth, mv, dout, mvout):
         D = np.empty((3, w + 2), dtype=np.float32)
         code = np.empty(w, dtype=np.int32)
         best = np.empty(w, dtype=np.float32)
+        if WINDOW16:
+            JX = np.empty(w, dtype=np.int32)
+            JY = np.empty(w, dtype=np.int32)
+            T = np.empty((2, w), dtype=np.float32)
         for r in range(ya - 1, yb + 1):
             sl = (r + 3) % 3
             D[sl, 0] = INF
@@ -130,13 +135,30 @@ def dilate3_kernel(depth, mv, dout, mvout):
                 t = b < dc  # the centre keeps ties
                 best[x] = b if t else dc
                 code[x] = c if t else np.int32(4)
-            for x in range(w):
-                k = np.int64(code[x])
-                q = (k * 11) >> 5  # k // 3 for k in 0..8, without a division
-                i = mad32(y + q - 1, w32, x + (k - 3 * q) - 1)  # the winner, flat
-                dout[y, x] = best[x]
-                mvout[0, y, x] = smv_b(ld32(mv, i))
-                mvout[1, y, x] = smv_b(ld32(mv, mad32(hw32, I32(1), i)))
+            if WINDOW16:
+                for x in range(w):
+                    k = np.int64(code[x])
+                    q = (k * 11) >> 5
+                    JY[x] = I32(y + q - 1)
+                    JX[x] = I32(x + (k - 3 * q) - 1)
+                    dout[y, x] = best[x]
+                for blk in range(w // 16):
+                    fetch16x2(mv, hw32, w32, I32(h), JX, JY, I32(16 * blk), T, I32(0), w32)
+                for x in range(w // 16 * 16, w):
+                    i = mad32(JY[x], w32, JX[x])
+                    T[0, x] = ld32(mv, i)
+                    T[1, x] = ld32(mv, mad32(hw32, I32(1), i))
+                for x in range(w):
+                    mvout[0, y, x] = smv_b(T[0, x])
+                    mvout[1, y, x] = smv_b(T[1, x])
+            else:
+                for x in range(w):
+                    k = np.int64(code[x])
+                    q = (k * 11) >> 5  # k // 3 for k in 0..8, without a division
+                    i = mad32(y + q - 1, w32, x + (k - 3 * q) - 1)  # the winner, flat
+                    dout[y, x] = best[x]
+                    mvout[0, y, x] = smv_b(ld32(mv, i))
+                    mvout[1, y, x] = smv_b(ld32(mv, mad32(hw32, I32(1), i)))
 
 
 @njit(**INLINE)
