@@ -409,9 +409,23 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
                                         f"{facts['scene_change']:.2f})"))
             timings.total.append((time.perf_counter() - t_all) * 1000.0 + shared_ms)
         return ctx
-    for spec, stage in stages:
+    i = 0
+    while i < len(stages):
+        spec, stage = stages[i]
+        i += 1
         t0 = time.perf_counter()
         need, why = stage.needed(ctx, facts)
+        if need and i < len(stages):  # a fused pass of this stage and the next one
+            nspec, nstage = stages[i]
+            out = stage.fuse(nstage, ctx, facts)
+            if out is not None:
+                i += 1
+                if sync is not None:
+                    sync()
+                ctx.update(out)
+                if timings is not None:
+                    timings.add(f"{spec.id}+{nspec.id}", (time.perf_counter() - t0) * 1000.0)
+                continue
         if need:
             out = stage.run(ctx)
         else:

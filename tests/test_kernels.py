@@ -612,6 +612,57 @@ def test_warp_window_fetches_equal_the_gathers():
                     R.dilate_nearest_depth(f["d1"], mv, 1))
 
 
+@pytest.mark.parametrize("name,f", CASES + [("wide 45x96", random_frames(45, 96, 11)),
+                                            ("wide 37x53 fast", random_frames(37, 53, 12, 30.0))],
+                         ids=IDS + ["wide 45x96", "wide 37x53 fast"])
+def test_warp_blend_fused_equals_the_two_stages(name, f):
+    """mob-fgsr's warp and blend in one pass (fgcli.kernels.ops.warp_blend, AVX-512) give
+    the two stages' colour and depth bit for bit: every hard case, alpha inside and at both
+    ends, with and without the target depth and the static cross-fade; elsewhere it
+    declines (None) and the stages run one after the other."""
+    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels.warp import flat_ok
+
+    dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
+    r = R.gap_fill(R.splat_motion(dd, mm, f["mv0"], 0.4), fallback_mv=f["mv0"],
+                   fallback_depth=f["d0"])
+    for a in (0.4, 0.0, 1.0, 0.7):
+        for dt in (None, r.depth):
+            for st in (None, r):
+                args = (f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0, dt, a, 0.02, 0.13, st)
+                got = K.warp_blend(*args)
+                if not HAVE_AVX512 or not flat_ok(*f["d1"].shape[-2:], 3):
+                    assert got is None
+                    continue
+                same_result(f"warp+blend a={a}", got, RF.warp_blend(*args))
+    assert K.warp_blend(f["c1"][:2], f["d1"], r.to1, f["c0"][:2], f["d0"], r.to0) is None
+
+
+def test_mob_fgsr_runs_warp_and_blend_fused():
+    """With the kernels the mob-fgsr interpolation times its warp and blend as one pass
+    ("warp+blend") where the fused kernel applies, and the frame equals the torch run."""
+    from fgcli import pipeline as pl
+    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.pipeline import Timings, run_stages
+    from fgcli.runner import make_ctx
+    from fgcli.synth import load_scene, render
+
+    scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"), size=(96, 54))
+    f0, f1 = render(scene, 3.0, 2.0, spp=1), render(scene, 4.0, 3.0, spp=1)
+    outs = {}
+    for backend in ("torch", "numba"):
+        tm = Timings()
+        ctx = make_ctx(f0, f1, 0.5, "interp")
+        ctx.update(prev_time=0.0, state=None, backend=backend)
+        with torch.inference_mode():
+            outs[backend] = run_stages(pl.load("mob-fgsr").build("interp"), ctx, tm)
+        fused = "warp+blend" in tm.stages
+        assert fused == (backend == "numba" and HAVE_AVX512), tm.stages
+        assert ("warp" in tm.stages) == (not fused)
+    for k in ("color", "depth", "mv"):
+        same(k, outs["numba"][k], outs["torch"][k])
+
+
 def test_window_fetch_intrinsics():
     """bilinear16x3, nearest16 and taps16 against a per-lane loop of the scalar helpers: random
     taps (gathered), taps within 32 columns of two and three rows (windows), the last

@@ -25,6 +25,7 @@ KERNEL_OPS = {
     "blend_interp": "fgcli.ops",
     "blend_eq1": "fgcli.kernels.reference",
     "warp_frames": "fgcli.kernels.reference",
+    "warp_blend": "fgcli.kernels.reference",
     "mv_warp": "fgcli.kernels.reference",
     "crossfade": "fgcli.kernels.reference",
     "guiding_flows": "fgcli.ops.mvinterp",

@@ -325,6 +325,55 @@ def blend_eq1(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b, static_from=N
                         return_depth=True, static_from=static_from)
 
 
+def warp_blend(color1, depth1, to1, color0, depth0, to0, d_target=None, alpha=0.5,
+               t_d=R.T_D_REL, t_b=R.T_B, static_from=None):
+    """warp_frames(color1, depth1, to1, color0, depth0, to0, 'bilinear') and then
+    blend_eq1 on its samples, in one pass (fgcli.kernels.blend.warp_blend_kernel): (colour,
+    depth), the same values; None where the fused kernel does not apply (no AVX-512, not
+    3-channel float32 CPU frames, past 32-bit indices): then the two ops one after the
+    other."""
+    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels.warp import flat_ok
+
+    frames = (color1, depth1, to1, color0, depth0, to0, d_target)
+    if not HAVE_AVX512 or not _cpu(*frames) or \
+            (static_from is not None and not _cpu(static_from.to1, static_from.to0)):
+        return None
+    if any(t is not None and (t.dtype != torch.float32 or t.dim() != 3)
+           for t in frames) or color1.shape[0] != 3 or color0 is None or \
+            color0.shape != color1.shape:
+        return None
+    h, w = color1.shape[-2:]
+    if not flat_ok(h, w, 3) or any(tuple(t.shape) != (n, h, w) for t, n in (
+            (depth1, 1), (depth0, 1), (to1, 2), (to0, 2))) or \
+            (d_target is not None and tuple(d_target.shape) != (1, h, w)):
+        return None
+    from fgcli.ops.blend import interp_blend_args
+
+    # (the blend's argument checks, on the inputs' shapes: the samples have them)
+    _, _, _, _, _, _, _, a, t_d, tb = interp_blend_args(
+        color0, color1, depth0, depth1, torch.ones(1, 1, 1, dtype=torch.bool).expand(1, h, w),
+        torch.ones(1, 1, 1, dtype=torch.bool).expand(1, h, w), d_target, alpha, t_d, t_b)
+    if static_from is not None:
+        m = static_from
+        mvalid, s_to1, s_to0, has_static = _u8(m.valid)[0], _a(m.to1), _a(m.to0), True
+    else:
+        mvalid, s_to1, s_to0, has_static = _DUMMYU8, _DUMMY3, _DUMMY3, False
+    from fgcli.kernels.blend import warp_blend_kernel
+
+    gxn, gyn, kx, ky = _grid(h, w)
+    table, base = _table()
+    endpoint = 1 if a == 0.0 else 2 if a == 1.0 else 0
+    out_c, out_d = _empty(3, h, w), _empty(1, h, w)
+    warp_blend_kernel(_a(color1), _a(depth1)[0], _a(to1), _a(color0), _a(depth0)[0], _a(to0),
+                      gxn, gyn, kx, ky,
+                      _a(d_target)[0] if d_target is not None else _DUMMY2,
+                      d_target is not None, mvalid, s_to1, s_to0, has_static, F32(a),
+                      F32(0.0 if a <= 0.5 else 1.0), F32(t_d), F32(tb), *_bright_margins(tb),
+                      endpoint, table, base, out_c.numpy(), out_d.numpy()[0])
+    return out_c, out_d
+
+
 def crossfade(color0, color1, depth0, depth1, mv1, alpha, mv_scale):
     if not _cpu(color0, color1, depth0, depth1, mv1) or color0.shape != color1.shape or \
             depth0.shape[0] != 1:
@@ -598,6 +647,8 @@ _GROUPS = (
                                  0.01, "nearest", i["mv"], i["d"], in_place=True)),
      ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
                                   0.5, 0.02, 0.13, static_from=i["gf"])),
+     ("core", lambda i: warp_blend(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0,
+                                   None, 0.5, 0.02, 0.13, static_from=i["gf"])),
      ("core", lambda i: any_nonzero(i["mv"])),
      ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
      ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
@@ -649,6 +700,8 @@ def _cache_cold(families=None) -> bool:
     compile one after the other, as before."""
     from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, scene, splat, warp
 
+    from fgcli.kernels._intrin import HAVE_AVX512
+
     fams = set(FAMILIES if families is None else families)
     kernels = ()
     if "core" in fams:
@@ -657,6 +710,7 @@ def _cache_cold(families=None) -> bool:
                     fill.gap_fill_kernel, fill.extrap_fill_kernel, warp.warp_kernel,
                     fill.gap_fill_inplace_kernel, fill.extrap_fill_inplace_kernel,
                     warp.mv_warp_kernel, blend.blend_kernel, blend.crossfade_kernel,
+                    *((blend.warp_blend_kernel,) if HAVE_AVX512 else ()),
                     blend.any_nonzero_kernel, scene.scene_luma_kernel,
                     scene.scene_counts_kernel)
     if "fsr3" in fams:

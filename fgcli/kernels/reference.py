@@ -57,3 +57,11 @@ def blend_eq1(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b, static_from=N
     kw = {} if static_from is None else {"static": static_mask(static_from)}
     return blend_interp(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b,
                         return_depth=True, **kw)
+
+
+def warp_blend(color1, depth1, to1, color0, depth0, to0, d_target=None, alpha=0.5, t_d=0.02,
+               t_b=0.13, static_from=None):
+    """The mob-fgsr warp and blend stages one after the other (bilinear): (color, depth).
+    (fgcli.kernels.ops.warp_blend does both in one pass.)"""
+    s1, v1, sd1, s0, v0, sd0 = warp_frames(color1, depth1, to1, color0, depth0, to0)
+    return blend_eq1(s0, s1, sd0, sd1, v0, v1, d_target, alpha, t_d, t_b, static_from)

@@ -190,13 +190,13 @@ def bil_taps(fx, fy, x, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB, YA, 
 
 
 @njit(**INLINE)
-def _taps_px(to, v, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB,
-             YA, YB, WT, Z, JX, JY):
-    """_warp_px's coordinates at pixel x into row buffers: the valid flag (into v), the
-    bilinear taps (bil_taps) and the nearest depth's pixel JX, JY."""
+def _taps_px(to, v, oy, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA,
+             XB, YA, YB, WT, Z, JX, JY):
+    """_warp_px's coordinates at pixel x into row buffers: the valid flag (into row oy of
+    v), the bilinear taps (bil_taps) and the nearest depth's pixel JX, JY."""
     rx = to[0, y, x]
     ry = to[1, y, x]
-    v[y, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
+    v[oy, x] = (rx >= F32(-0.5) - xf) & (rx < F32(w - 0.5) - xf) & (ry >= lo_y) & (ry < hi_y)
     fx = sflow_b(rx)
     fy = sflow_b(ry)
     bil_taps(fx, fy, x, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB, YA, YB, WT, Z)
@@ -237,8 +237,8 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
         Z = np.empty(w, dtype=np.int32)
         WT = np.empty((4, w), dtype=np.float32)
         for x in range(w):
-            _taps_px(to1, v1, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1,
-                     w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+            _taps_px(to1, v1, y, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                     hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
         for b in range(nb):
             bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s1, hw32,
                          ro)
@@ -248,8 +248,8 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
                      kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         if two:
             for x in range(w):
-                _taps_px(to0, v0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
-                         hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+                _taps_px(to0, v0, y, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
+                         wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
             for b in range(nb):
                 bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s0,
                              hw32, ro)

@@ -109,6 +109,14 @@ class Stage:
     def run(self, ctx: dict) -> dict:
         raise NotImplementedError
 
+    def fuse(self, nxt: "Stage", ctx: dict, facts: dict) -> dict | None:
+        """This stage and the next one of the pipeline (``nxt``) in one pass, where a fused
+        kernel computes what the two would: the outputs of both (the runner then skips
+        ``nxt`` and times the pair as ``this+next``). None (the default): one after the
+        other. Asked only when this stage is needed; a stage that fuses must return None
+        unless ``nxt`` would run and its result would be the same."""
+        return None
+
 
 REGISTRY: dict[str, type[Stage]] = {}
 

@@ -209,6 +209,22 @@ class Warp(Stage):
             ctx["depth0"] if two else None, m.to0 if two else None, self.filter)
         return {"s1": s1, "v1": v1, "sd1": sd1, "s0": s0, "sd0": sd0, "v0": v0}
 
+    def fuse(self, nxt, ctx, facts):
+        """Interpolation with the kernels: this warp and the blend that follows it in one
+        pass (fgcli.kernels.ops.warp_blend: the samples stay in row buffers; 1080p: ~2 ms
+        less than the two stages). The samples (s0, s1, ...) are then not kept."""
+        if not isinstance(nxt, Blend) or ctx.get("backend") != "numba" or \
+                ctx["mode"] != "interp" or self.filter != "bilinear":
+            return None
+        from fgcli.kernels import op
+
+        m = ctx["motion"]
+        res = op("warp_blend", ctx)(ctx["color1"], ctx["depth1"], m.to1, ctx["color0"],
+                                    ctx["depth0"], m.to0, *nxt.blend_args(ctx))
+        if res is None:
+            return None
+        return {"color": res[0], "depth": res[1]}
+
 
 @register
 class Blend(Stage):
@@ -238,16 +254,20 @@ class Blend(Stage):
 
         if ctx["mode"] == "extrap":
             return {"color": ctx["s1"], "depth": ctx["sd1"]}
-        dt = ctx["motion"].depth if self.target_depth and ctx.get("motion") is not None else None
         # the generated frame's depth follows the same per-pixel choice as its color
+        color, depth = op("blend_eq1", ctx)(
+            ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"],
+            *self.blend_args(ctx))
+        return {"color": color, "depth": depth}
+
+    def blend_args(self, ctx):
+        """(d_target, alpha, t_d, t_b, static_from) of blend_eq1 (and of the warp's fused
+        pass, Warp.fuse)."""
         m = ctx.get("motion")
+        dt = m.depth if self.target_depth and m is not None else None
         # static cross-fade: pixels whose surface sits still from frame 0 to frame 1
         # (no motion; fgcli.kernels.reference.static_mask)
-        color, depth = op("blend_eq1", ctx)(
-            ctx["s0"], ctx["s1"], ctx["sd0"], ctx["sd1"], ctx["v0"], ctx["v1"], dt,
-            ctx["alpha"], self.t_d, self.t_b,
-            static_from=m if self.static_crossfade else None)
-        return {"color": color, "depth": depth}
+        return dt, ctx["alpha"], self.t_d, self.t_b, m if self.static_crossfade else None
 
 
 @register
