@@ -588,7 +588,7 @@ def test_collect_background_matches_the_reference(h, w):
                                   K.collect_background(*args), G.collect_background(*args))
 
 
-@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51), (12, 64)])
 def test_dilated_positions_matches_the_reference(h, w):
     """The position stage's dilation + Eq. 1 in one kernel: k 2-4, linear / quadratic,
     with and without the dynamic mask, several alphas."""

@@ -452,6 +452,15 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
     gxn, gyn, kx, ky = _grid(h, w)
     out, holes, bias = _empty(3, h, w), _empty(1, h, w, dtype=torch.bool), _empty(1, h, w)
     has_of = of_vec is not None
+    from fgcli.kernels.fsr3 import WINDOW16
+
+    if has_of and WINDOW16:  # both paths in one pass (the window fetches: AVX-512)
+        from fgcli.kernels.fsr3 import interp_window_kernel
+
+        interp_window_kernel(_a(color0), _a(color1), _a(vec), _a(of_vec), _a(mask_prev)[0],
+                             _a(mask_cur)[0], F32(a), F32(-(1.0 - a)), F32(1.0 - a), gxn, gyn,
+                             kx, ky, out.numpy(), holes.numpy()[0], bias.numpy()[0])
+        return out, holes, bias
     T, G = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     S = np.empty((h, w), dtype=np.float32) if has_of else _DUMMY2
     a32, na32 = F32(a), F32(-(1.0 - a))
@@ -654,6 +663,7 @@ _GROUPS = (
      ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
      ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
                                          i["mv"])),
+     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),
      ("fsr3", lambda i: avg_pool2(i["c"])),
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: luma8(i["c"])),
@@ -723,7 +733,8 @@ def _cache_cold(families=None) -> bool:
                     field.field_scatter_kernel, field.field_walk_kernel,
                     field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
-                    fsr3.interp_game_kernel, fsr3.interp_flow_kernel, pyramid.pool2_kernel,
+                    fsr3.interp_game_kernel, pyramid.pool2_kernel,
+                    fsr3.interp_window_kernel if HAVE_AVX512 else fsr3.interp_flow_kernel,
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,
