@@ -573,8 +573,8 @@ def test_warp_window_fetches_equal_the_gathers():
     gathering kernel's values bit for bit (and so the reference's): widths that are and
     are not a multiple of 16, narrower than the 32-column window, one and two rows; colour
     with NaN / +-inf / 65504 (the sanitising path) and NaN / inf depth; every fetch path
-    taken (windows of two and three rows, gathers). The 3x3 dilation's reads at the
-    winners (fetch16x2) against the reference on the same frames."""
+    taken (windows of two and three rows, gathers). The 3x3 dilation's and the splat
+    resolve's reads at the winners (fetch16x2) against the reference on the same frames."""
     import numpy as np
 
     from fgcli.kernels._intrin import HAVE_AVX512
@@ -610,6 +610,13 @@ def test_warp_window_fetches_equal_the_gathers():
         mv[1, 1::5] = INF
         same_result(f"dilate {h}x{w}", K.dilate_nearest_depth(f["d1"], mv, 1),
                     R.dilate_nearest_depth(f["d1"], mv, 1))
+        # and the splat's resolve its reads at the winning sources (fetch16x2)
+        for model, mode, a, t0 in (("quadratic", "interp", 0.4, True),
+                                   ("linear", "extrap", 0.5, False),
+                                   ("linear", "interp", 0.7, True)):
+            same_result(f"splat {h}x{w} {model}",
+                        K.splat_motion(f["d1"], mv, flows[0], a, model, mode, toward0=t0),
+                        R.splat_motion(f["d1"], mv, flows[0], a, model, mode, toward0=t0))
 
 
 @pytest.mark.parametrize("name,f", CASES + [("wide 45x96", random_frames(45, 96, 11)),

@@ -298,12 +298,13 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
 
 
 @njit(**KERNEL)
-def splat_resolve_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, valid,
+def splat_resolve_pixels_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, valid,
                          source):
     """Every target pixel from its winning key in buf (splat_kernel's scatter).
 
     A kernel of its own: inside the scatter's kernel LLVM left these loops scalar (no
-    gathers in the assembly; 10-11 ms at 1080p against 6-7 ms here)."""
+    gathers in the assembly; 10-11 ms at 1080p against 6-7 ms here). (splat_resolve_kernel:
+    this one, or splat_resolve_window_kernel where the CPU has AVX-512.)"""
     h, w = depth1.shape
     w2 = w + 2
     w32 = I32(w)
@@ -327,3 +328,96 @@ def splat_resolve_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, v
             for x in range(w):
                 _resolve_px(buf[r + x], x, y, False, False, depth1, mv1, disp, ca, w32, hw32,
                             to1, to0, dout, valid, source)
+
+
+@njit(**INLINE)
+def _winner_px(k, x, y, JX, JY):
+    """The source pixel of target (x, y) from its key (itself for a hole), into JX, JY."""
+    ok = k != I64_MAX
+    lo = k & 0xFFFFFFFF
+    JY[x] = I32(lo >> 16) if ok else I32(y)
+    JX[x] = I32(lo & 0xFFFF) if ok else I32(x)
+
+
+@njit(**INLINE)
+def _resolve_from(k, x, y, quad, w0, T, ca, w, to1, to0, dout, valid, source):
+    """_resolve_px with the source's vector (and quadratic displacement) already read
+    into the row buffer T (4, W): mv1's two planes, then disp's."""
+    ok = k != I64_MAX
+    lo = k & 0xFFFFFFFF
+    sy = (lo >> 16) if ok else y
+    sx = (lo & 0xFFFF) if ok else np.int64(x)
+    ax = smv_b(T[0, x])
+    ay = smv_b(T[1, x])
+    if quad:
+        dx = T[2, x]
+        dy = T[3, x]
+    else:
+        dx = ax * ca
+        dy = ay * ca
+    source[y, x] = mad32(sy, w, sx) if ok else I32(-1)
+    valid[y, x] = ok
+    dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
+    to1[0, y, x] = -dx if ok else F32(0.0)
+    to1[1, y, x] = -dy if ok else F32(0.0)
+    if w0:
+        to0[0, y, x] = ax - dx if ok else F32(0.0)
+        to0[1, y, x] = ay - dy if ok else F32(0.0)
+
+
+@njit(**KERNEL)
+def splat_resolve_window_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, valid,
+                                source):
+    """splat_resolve_pixels_kernel with the winners' vectors (and displacements) fetched
+    16 target pixels at a time (fgcli.kernels._intrin.fetch16x2, AVX-512 only): per row,
+    the sources into row buffers, the fetches, then the outputs. The same values."""
+    h, w = depth1.shape
+    w2 = w + 2
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    nb = w // 16
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        JX = np.empty(w, dtype=np.int32)
+        JY = np.empty(w, dtype=np.int32)
+        T = np.empty((4, w), dtype=np.float32)
+        for y in range(ya, yb):
+            r = (y + 1) * w2 + 1
+            for x in range(w):
+                _winner_px(buf[r + x], x, y, JX, JY)
+            for b in range(nb):
+                fetch16x2(mv1, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(0), w32)
+                if quad:
+                    fetch16x2(disp, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(2 * w), w32)
+            for x in range(16 * nb, w):
+                i = mad32(JY[x], w32, JX[x])
+                T[0, x] = ld32(mv1, i)
+                T[1, x] = ld32(mv1, mad32(hw32, I32(1), i))
+                if quad:
+                    T[2, x] = ld32(disp, i)
+                    T[3, x] = ld32(disp, mad32(hw32, I32(1), i))
+            if quad and w0:
+                for x in range(w):
+                    _resolve_from(buf[r + x], x, y, True, True, T, ca, w32, to1, to0, dout,
+                                  valid, source)
+            elif quad:
+                for x in range(w):
+                    _resolve_from(buf[r + x], x, y, True, False, T, ca, w32, to1, to0, dout,
+                                  valid, source)
+            elif w0:
+                for x in range(w):
+                    _resolve_from(buf[r + x], x, y, False, True, T, ca, w32, to1, to0, dout,
+                                  valid, source)
+            else:
+                for x in range(w):
+                    _resolve_from(buf[r + x], x, y, False, False, T, ca, w32, to1, to0, dout,
+                                  valid, source)
+
+
+# with AVX-512, the resolve's reads at the winners as 16-lane window fetches (numba's cache
+# keys compiled code by CPU, so a cache never carries one machine's choice to another)
+splat_resolve_kernel = splat_resolve_window_kernel if WINDOW16 else \
+    splat_resolve_pixels_kernel
