@@ -508,7 +508,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
         fams = families_of([st for _, st in stages])  # only what this pipeline calls
         if _cache_cold(fams):
             print("fgen: compiling the numba CPU kernels (first run of this fgen version on "
-                  "this machine: one to two minutes on 2 cores; --backend torch skips them)",
+                  "this machine: one to three minutes on 2 cores; --backend torch skips them)",
                   file=sys.stderr)
         kernel_load_s = warm(families=fams)
         if kernel_load_s > 3.0:

@@ -68,7 +68,7 @@ def numba_available() -> bool:
 
 # What `auto` picks on the CPU: the kernels (bit-identical to the torch ops on FMA builds,
 # 2-3x faster per 1080p frame; docs/performance.md) for frames of at least AUTO_MIN_PIXELS.
-# A fresh install compiles them once into numba's on-disk cache (1-2 minutes on 2
+# A fresh install compiles them once into numba's on-disk cache (1-3 minutes on 2
 # cores); later processes load them in < 1 s. Below that size torch eager costs a few ms
 # per frame, so the one-time compilation would not pay for itself: auto stays torch there
 # (`--backend numba` forces the kernels).
