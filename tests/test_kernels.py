@@ -1290,15 +1290,31 @@ def test_any_nonzero_matches_the_reference():
 
 @pytest.mark.slow
 def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
-    # a fresh install (empty numba cache): warm() compiles the kernels of the families asked
-    # for (here the shared ones, ~50 s; every family is ~2 min), split between two
-    # processes; a second process then only loads them (no cache misses)
+    # an install whose numba cache lacks some kernels (a fresh one lacks all; compiling all
+    # takes minutes, so this starts from a copy of the session's cache less two kernels):
+    # warm() reads the cache as cold, compiles what is missing, split between two
+    # processes, and a second process then only loads (no cache misses)
+    import shutil
+
+    from fgcli.kernels import splat
+
+    assert not K._cache_cold()  # the session fixture compiled everything: a full copy
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    r = subprocess.run([sys.executable, "-c", "from fgcli.kernels import splat; "
+                        "print(splat.splat_kernel._cache._cache_path)"], env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    dst = r.stdout.strip()
+    src = splat.splat_kernel._cache._cache_path
+    gone = ("splat.splat_kernel-", "fill.gap_fill_kernel-")
+    shutil.copytree(src, dst, dirs_exist_ok=True,
+                    ignore=lambda d, names: [n for n in names if n.startswith(gone)])
+    assert any(n.startswith("warp.") for n in os.listdir(dst))
     code = ("from fgcli.kernels import ops, splat, warp, blend, fill; "
-            "ops.warm(families={'core'}); "
+            "cold = ops._cache_cold({'core'}); ops.warm(families={'core'}); "
             "ks = (splat.splat_kernel, warp.warp_kernel, blend.blend_kernel, "
             "fill.gap_fill_kernel, warp.mv_warp_kernel, fill.extrap_fill_kernel); "
-            "print(sum(sum(k.stats.cache_misses.values()) for k in ks), "
+            "print(cold, sum(sum(k.stats.cache_misses.values()) for k in ks), "
             "ops._cache_cold({'core'}))")
     outs = []
     for _ in range(2):
@@ -1306,8 +1322,50 @@ def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
                            text=True, timeout=900)
         assert r.returncode == 0, r.stderr[-2000:]
         outs.append(r.stdout.split())
-    assert outs[0][-1] == "False", outs  # the first run wrote every kernel's cache index
-    assert outs[1] == ["0", "False"], outs  # the second compiled nothing
+    assert outs[0][0] == "True" and outs[0][-1] == "False", outs  # cold, then every index
+    assert any(n.startswith(gone[0]) for n in os.listdir(dst))  # written by warm()
+    assert outs[1] == ["False", "0", "False"], outs  # the second compiled nothing
+
+
+def test_warm_compiles_every_kernel_the_cold_check_asks_for():
+    # _cache_cold() lists kernels by CPU (e.g. the mpsadbw block search or the portable one);
+    # a listed kernel that warm() never calls would leave the cache "cold" for ever: every
+    # run would announce compiling and start a second process
+    code = ("from fgcli.kernels import ops; ops.warm(); "
+            "print([k.__name__ for fam in ops.FAMILIES for k in ops._warm_kernels({fam}) "
+            "if not k.overloads], ops._cache_cold())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=900, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["[]", "False"], r.stdout
+
+
+def test_a_run_after_warm_compiles_no_new_overload(tmp_path):
+    # warm() calls each kernel on 8x8 inputs; a real frame must reach the same overloads
+    # (array types and layouts), or its first frame compiles again (the block search once
+    # got a non-C prediction array from numpy's fancy index: 2 s inside the first frame)
+    src = os.path.join(ROOT, "sample_data", "orbit", "input")
+    runs = [["interpolate", "--pipeline", p] for p in ("mob-fgsr", "fsr3-interp", "mv-warp")]
+    runs += [["extrapolate", "--pipeline", p] for p in ("mob-fgsr", "gffe-extrap")]
+    code = f"""
+import os
+from fgcli.cli import main
+from fgcli.kernels import ops
+ops.warm()
+ks = [k for fam in ops.FAMILIES for k in ops._warm_kernels({{fam}})]
+seen = [set(k.overloads) for k in ks]
+for i, (cmd, *rest) in enumerate({runs!r}):
+    try:
+        main([cmd, {src!r}, os.path.join({str(tmp_path)!r}, str(i)), *rest, "--frames",
+              "0-4x2", "--backend", "numba", "--no-progress"])
+    except SystemExit as e:
+        assert e.code in (0, None), (cmd, rest, e.code)
+print([(k.__name__, str(sig)) for k, s in zip(ks, seen) for sig in set(k.overloads) - s])
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=900, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split("\n")[-2] == "[]", r.stdout[-2000:]
 
 
 def test_a_run_loads_only_its_pipelines_kernel_families():

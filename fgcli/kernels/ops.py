@@ -708,6 +708,18 @@ def _cache_cold(families=None) -> bool:
     """True when some kernel (of the given families; default all) has no on-disk cache index
     yet (a fresh install). A stale index (an upgrade) reads as warm: those kernels then
     compile one after the other, as before."""
+    try:
+        import os
+
+        return not all(os.path.exists(k._cache._cache_file._index_path)
+                       for k in _warm_kernels(families))
+    except AttributeError:  # numba internals moved: assume warm
+        return False
+
+
+def _warm_kernels(families=None) -> tuple:
+    """The kernels warm(families) compiles on this CPU (what _cache_cold checks: one that
+    warm() does not compile would leave the cache cold for ever)."""
     from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, scene, splat, warp
 
     from fgcli.kernels._intrin import HAVE_AVX512
@@ -726,10 +738,12 @@ def _cache_cold(families=None) -> bool:
     if "fsr3" in fams:
         from fgcli.kernels._intrin import HAVE_MPSADBW
 
-        if HAVE_MPSADBW:  # (compiled only where it runs)
+        if HAVE_MPSADBW:  # (each search kernel compiled only where it runs: FSR 3's sizes)
             kernels += (flow.block_search_sad_kernel, flow.luma_u8_kernel,
                         flow.pool2_u8_kernel)
-        kernels += (flow.block_search_kernel, flow.vector_median3_kernel,
+        else:
+            kernels += (flow.block_search_kernel,)
+        kernels += (flow.vector_median3_kernel,
                     field.field_scatter_kernel, field.field_walk_kernel,
                     field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
@@ -757,12 +771,7 @@ def _cache_cold(families=None) -> bool:
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.max3_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
-    try:
-        import os
-
-        return not all(os.path.exists(k._cache._cache_file._index_path) for k in kernels)
-    except AttributeError:  # numba internals moved: assume warm
-        return False
+    return kernels
 
 
 def warm(parallel: bool = True, families=None) -> float:
@@ -913,7 +922,9 @@ def _block_flow_u8(lum0, lum1, levels, median):
         else:  # the parent block's vector, twice (the last row / column replicated)
             iy = np.minimum(np.arange(nby) // 2, flow.shape[1] - 1)
             ix = np.minimum(np.arange(nbx) // 2, flow.shape[2] - 1)
-            pred = flow[:, iy[:, None], ix[None, :]].astype(np.int64) * 2
+            # (C order: numpy's fancy index puts the channel axis last in memory, and a
+            # non-C array would make numba compile a second overload at the first frame)
+            pred = np.ascontiguousarray(flow[:, iy[:, None], ix[None, :]], dtype=np.int64) * 2
         out = np.empty((2, nby, nbx), dtype=np.int64)
         block_search_sad_kernel(p1[lv], p0[lv], pred, out)
         flow = out.astype(np.float32)
