@@ -816,7 +816,9 @@ def test_fsr3_field_scatter_runs():
     """The field scatter writes runs of 16 sources whose footprints continue each other
     (smooth motion) as vector maxima: regions of one sub-pixel vector each (all four taps
     written), runs cut by a region's edge, by a clamped tap at the frame's edge and by
-    chunk ends, beside random vectors; against the reference exactly."""
+    chunk ends, beside random vectors; against the reference exactly. The depth
+    reconstruction on the same vectors, with zeros, negatives, NaN, +-inf and runs of
+    equal depths."""
     from fgcli.ops import fsr3
 
     g = torch.Generator().manual_seed(11)
@@ -830,11 +832,17 @@ def test_fsr3_field_scatter_runs():
         v[:, 3, :] = torch.tensor([[40.5], [0.5]])  # runs off the right edge
         for r, n in ((5, 31), (7, 47), (9, 16), (11, 17)):  # a run, then one that breaks it
             v[:, r, :n] = torch.tensor([[2.3], [0.45]])
-        hi = fsr3.depth_priority(torch.rand(1, h, w, generator=g) + 0.5)
+        d = torch.rand(1, h, w, generator=g) + 0.5
+        hi = fsr3.depth_priority(d)
+        d[0, 5, 3:9] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), -float("inf"), -0.0])
+        d[0, 9:12, :40] = 2.0  # equal depths over runs
+        d[0, 2::7, ::5] = 0.0
         for a in (0.5, 0.25):
             for sec in (False, True):
                 same("field runs", _kfield(c0, c1, v, hi, a, sec, 64),
                      fsr3.vector_field(c0, c1, v, hi, a, sec, 64))
+            for k, r in zip(K.reconstruct_depths(d, v, a), fsr3.reconstruct_depths(d, v, a)):
+                same("depth runs", k, r)
 
 
 def test_fsr3_lengths_take_torchs_sqrt():
