@@ -671,10 +671,11 @@ def test_mob_fgsr_runs_warp_and_blend_fused():
 
 
 def test_window_fetch_intrinsics():
-    """bilinear16x3, nearest16 and taps16 against a per-lane loop of the scalar helpers: random
-    taps (gathered), taps within 32 columns of two and three rows (windows), the last
-    column and row, NaN / +-inf / huge values (sanitised only in the planes that have
-    them), zero-flow lanes; the returned fetch path covers all three."""
+    """bilinear16x3, bilinear16x1 (each plane on its own), nearest16 and taps16 against a
+    per-lane loop of the scalar helpers: random taps (gathered), taps within 32 columns of
+    two and three rows (windows), the last column and row, NaN / +-inf / huge values
+    (sanitised only in the planes that have them), zero-flow lanes; the returned fetch
+    path covers all three."""
     import numpy as np
     from numba import njit
 
@@ -683,7 +684,7 @@ def test_window_fetch_intrinsics():
 
     if not HAVE_AVX512:
         pytest.skip("no AVX-512")
-    from fgcli.kernels._intrin import bilinear16x3, nearest16, taps16
+    from fgcli.kernels._intrin import bilinear16x1, bilinear16x3, nearest16, taps16
 
     @njit
     def run(img, w, h, XA, XB, YA, YB, WT, Z, out, dout, cy, T):
@@ -696,6 +697,17 @@ def test_window_fetch_intrinsics():
             paths[2 * b] = p if t == p else -1  # (the same taps: the same path)
             paths[2 * b + 1] = nearest16(img, np.int32(w), np.int32(h), XA, YA,
                                          np.int32(16 * b), dout, np.int32(0))
+        return paths
+
+    @njit
+    def run1(img, w, h, XA, XB, YA, YB, WT, Z, out, cy):
+        paths = np.zeros(XA.shape[0] // 16 * 3, np.int32)
+        for k in range(3):
+            for b in range(XA.shape[0] // 16):
+                paths[3 * b + k] = bilinear16x1(img[k], np.int32(7), np.int32(w), np.int32(h),
+                                                XA, XB, YA, YB, WT, Z, np.int32(16 * b),
+                                                np.int32(cy * w), out[k], np.int32(7),
+                                                np.int32(0))
         return paths
 
     @njit
@@ -739,8 +751,13 @@ def test_window_fetch_intrinsics():
         a, b = np.full((3, n + 5), 9.0, np.float32), np.full((3, n + 5), 9.0, np.float32)
         da, db = np.zeros(n, np.float32), np.zeros(n, np.float32)
         T = np.full((4, n), 5.0, np.float32)
-        seen.update(run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy, T).tolist())
+        pth = run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy, T)
+        seen.update(pth.tolist())
+        a1 = np.full((3, n + 5), 9.0, np.float32)
+        pth1 = run1(img, w, h, XA, XB, YA, YB, WT, Z, a1, cy)
+        assert np.array_equal(pth1.reshape(-1, 3), np.repeat(pth[::2, None], 3, 1)), trial
         ref(img, w, XA, XB, YA, YB, WT, Z, b, db, cy)
+        assert np.array_equal(a1.view(np.int32), b.view(np.int32)), trial
         taps = np.stack([img[1, ya, xa], img[1, ya, xb], img[1, yb, xa], img[1, yb, xb]])
         assert np.array_equal(T.view(np.int32), taps.view(np.int32)), trial
         assert np.array_equal(a.view(np.int32), b.view(np.int32)), trial

@@ -443,22 +443,9 @@ def _f32_arrays(*arrs):
                for a in arrs)
 
 
-@intrinsic
-def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
-                 ooff):
-    """Pixels j .. j + 15 of a row of grid_sample(bilinear) of a 3-plane image, as the
-    warp kernels compute them (fgcli.kernels.warp._bil_pair): taps (XA, YA), (XB, YA),
-    (XA, YB), (XB, YB) (1-D int32 row buffers, lanes j..j+15), each sanitised (sval_b),
-    weighted by WT (C-contiguous float32 (4, n): nw, ne, sw, se) in the reference's FMA
-    chain fma(se, ., fma(sw, ., fma(ne, ., nw * .))); where Z (int32 row buffer) is
-    non-zero, the sanitised pixel itself (img at p * pst + coff + j + lane): the zero-flow
-    case. Plane p = 0, 1, 2 of img starts at p * pst, rows of w (C-contiguous float32, flat
-    int32 offsets); its results go to out at p * opst + ooff + j (a frame's row, or a row
-    buffer). Returns the fetch path (2, 3: window rows; 0: gathered).
-
-    When no tap or centre of a plane is NaN or infinite (checked on the 16 lanes: the sum
-    of every v - v is not NaN), the sanitising selects are skipped (they would change
-    nothing). AVX-512 only (HAVE_AVX512); every lane is written."""
+def _bilinear16(nplanes, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                ooff):
+    """bilinear16x3 / bilinear16x1's typing and code, for nplanes planes."""
     if not (_f32_arrays(img, WT, out) and _i32_arrays(XA, XB, YA, YB, Z)
             and WT.ndim == 2):
         return None
@@ -481,10 +468,10 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out,
         wts = [_vload(builder, wt.data, builder.add(jj, builder.mul(tw, ir.Constant(i32, k))),
                       v16f) for k in range(4)]
         zm = builder.icmp_signed("!=", z, ir.Constant(v16i, [0] * 16))
-        offs = [builder.mul(pst, ir.Constant(i32, p)) for p in range(3)]
+        offs = [builder.mul(pst, ir.Constant(i32, p)) for p in range(nplanes)]
         taps, path = _fetch16(builder, base, offs, w, h, xa, xb, ya, yb)
         cj, oj, opst = builder.add(sc(11), jj), builder.add(sc(14), jj), sc(13)
-        for p in range(3):
+        for p in range(nplanes):
             po = builder.add(offs[p], cj)
             vals = taps[p] + [_vload(builder, base, po, v16f)]
             t = None
@@ -514,6 +501,34 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out,
         return path
 
     return sig, codegen
+
+
+@intrinsic
+def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                 ooff):
+    """Pixels j .. j + 15 of a row of grid_sample(bilinear) of a 3-plane image, as the
+    warp kernels compute them (fgcli.kernels.warp._bil_pair): taps (XA, YA), (XB, YA),
+    (XA, YB), (XB, YB) (1-D int32 row buffers, lanes j..j+15), each sanitised (sval_b),
+    weighted by WT (C-contiguous float32 (4, n): nw, ne, sw, se) in the reference's FMA
+    chain fma(se, ., fma(sw, ., fma(ne, ., nw * .))); where Z (int32 row buffer) is
+    non-zero, the sanitised pixel itself (img at p * pst + coff + j + lane): the zero-flow
+    case. Plane p = 0, 1, 2 of img starts at p * pst, rows of w (C-contiguous float32, flat
+    int32 offsets); its results go to out at p * opst + ooff + j (a frame's row, or a row
+    buffer). Returns the fetch path (2, 3: window rows; 0: gathered).
+
+    When no tap or centre of a plane is NaN or infinite (checked on the 16 lanes: the sum
+    of every v - v is not NaN), the sanitising selects are skipped (they would change
+    nothing). AVX-512 only (HAVE_AVX512); every lane is written."""
+    return _bilinear16(3, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                       ooff)
+
+
+@intrinsic
+def bilinear16x1(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                 ooff):
+    """bilinear16x3 of a one-plane image (pst and opst: unused, any int)."""
+    return _bilinear16(1, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out, opst,
+                       ooff)
 
 
 @intrinsic

@@ -12,11 +12,14 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
-from fgcli.kernels._intrin import ld32, mad32, umax16
+from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x1, ld32, mad32, umax16
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
-from fgcli.kernels.warp import I32, _bil_pair, _flat_coords
+from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
 _PRIMARY = np.uint32(1 << 31)
+# entries_kernel's bilinear luminance taps: 16 pixels per window fetch where the CPU has
+# AVX-512 (fgcli.kernels._intrin; a module constant: numba's cache keys code by CPU)
+WINDOW16 = HAVE_AVX512
 
 
 @njit(**INLINE)
@@ -330,7 +333,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
     so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps are pair
     loads): frame 0's luminance read bilinearly at
-    p + v (grid_sample's arithmetic, on-screen test), its 5-bit agreement with frame 1's
+    p + v (grid_sample's arithmetic, on-screen test; 16 pixels per window fetch where the
+    CPU has AVX-512: WINDOW16), its 5-bit agreement with frame 1's
     luminance at p, the packed primary entries of both components (keys (2, H, W) uint32)
     and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
     ``sec``: dist (H, W) = the squared length of (1 - alpha) v (the reference's products
@@ -343,6 +347,7 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     hm1 = F32(h - 1)
     w32 = I32(w)
     h32 = I32(h)
+    nb = w // 16 if WINDOW16 else 0  # pixels 0 .. 16 nb - 1 of a row: window fetches
     for py in prange(h):
         y = np.int64(py)
         yf = F32(y)
@@ -351,7 +356,25 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
         hi_y = F32(h - 0.5) - yf
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
-        for x in range(w):
+        if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
+            XA = np.empty(w, dtype=np.int32)
+            XB = np.empty(w, dtype=np.int32)
+            YA = np.empty(w, dtype=np.int32)
+            YB = np.empty(w, dtype=np.int32)
+            Z = np.empty(w, dtype=np.int32)
+            WT = np.empty((4, w), dtype=np.float32)
+            for x in range(w):
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                xf = F32(x)
+                ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) &
+                             (vy >= lo_y) & (vy < hi_y))
+                bil_taps(vx, vy, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                         YA, YB, WT, Z)
+            for b in range(nb):
+                bilinear16x1(l0, I32(0), w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b),
+                             I32(y * w), s0, I32(0), I32(0))
+        for x in range(16 * nb, w):
             vx = smv_b(vec[0, y, x])
             vy = smv_b(vec[1, y, x])
             xf = F32(x)
