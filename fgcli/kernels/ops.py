@@ -1052,7 +1052,8 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     half the bytes; unpack_vector_field reads either."""
     from fgcli.ops import fsr3 as FS
 
-    if not _cpu(color0, color1, vec, hi):
+    if not _cpu(color0, color1, vec, hi) or \
+            (vec.shape[-2] + 2) * (vec.shape[-1] + 2) >= 2 ** 31:  # (int32 texel indices)
         return FS.vector_field(color0, color1, vec, hi, alpha, secondary, max_secondary,
                                tap_threshold, length_bound)
     from fgcli.kernels.field import field_scatter_kernel
@@ -1089,7 +1090,7 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
 
     if not (_cpu(depth, mv) and depth.dtype == torch.float32 and mv.dtype == torch.float32
             and depth.shape[0] == 1 and mv.shape[0] == 2 and depth.shape[1:] == mv.shape[1:]
-            and depth.numel() > 0):
+            and 0 < depth.numel() < 2 ** 31):  # (int32 texel indices)
         return FS.reconstruct_depths(depth, mv, alpha, short_mv, tap_threshold)
     from fgcli.kernels.field import depth_scatter_pair_kernel
 
