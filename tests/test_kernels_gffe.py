@@ -497,14 +497,20 @@ def test_background_fill_matches_the_reference(h, w):
         prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"], layer1_scale=sc)
         layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"],
                                       layer1_scale=sc)
-        for filt in ("nearest", "bilinear"):
-            for ent, em, a in ((False, False, 0.5), (True, False, 3.0), (True, True, 0.5),
-                               (True, True, 3.0)):
-                for i, fr in enumerate(frames):
-                    args = fr + (layers, f["cam1"], f["cam_x"], filt, f["ch"], f["dh"],
-                                 f["mh"], a, ent, em)
-                    same_tree(f"background_fill {h}x{w} {sc} {filt} {ent} {em} {a} {i}",
-                              K.background_fill(*args), G.background_fill(*args))
+        # a sequence's first frame (layer 1 empty: not projected at all) and no static
+        # pixel (both layers empty)
+        first = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], layer1_scale=sc)
+        assert not bool(first[1]["valid"].any())
+        none = [dict(lay, valid=torch.zeros_like(lay["valid"])) for lay in layers]
+        for li, lays in enumerate((layers, first, none)):
+            for filt in ("nearest", "bilinear"):
+                for ent, em, a in ((False, False, 0.5), (True, False, 3.0),
+                                   (True, True, 0.5), (True, True, 3.0)):
+                    for i, fr in enumerate(frames):
+                        args = fr + (lays, f["cam1"], f["cam_x"], filt, f["ch"], f["dh"],
+                                     f["mh"], a, ent, em)
+                        same_tree(f"background_fill {h}x{w} {sc} {li} {filt} {ent} {em} {a} "
+                                  f"{i}", K.background_fill(*args), G.background_fill(*args))
 
 
 @pytest.mark.parametrize("sc", [1, 2])
