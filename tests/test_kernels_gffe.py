@@ -436,6 +436,55 @@ def test_fused_gffe_ops_match_the_reference(h, w):
         close_tree(f"{name} {h}x{w}", getattr(K, name)(*args), getattr(G, name)(*args))
 
 
+@pytest.mark.parametrize("h,w", [(37, 45), (64, 64), (33, 100), (70, 9), (9, 70)])
+def test_push_pull_tiles_equal_the_frames_pyramid(h, w):
+    """push_pull_fill by tiles (the pyramids of the aligned tiles with holes only) against
+    the reference's pyramid of the frame, bit for bit: tiles of 2, 4, 8 and 32 pixels;
+    single holes, a block across tile borders, holes in the last (partial) row and
+    column; colours with NaN / +-inf, depths with sky, zero, negative and NaN; the tile
+    path asserted taken. A tile of holes only, or whose valid pixels have no finite
+    depth, sends the frame to the frame's pyramid (the same values)."""
+    from fgcli.kernels.gffe import pp_tile_scan_kernel
+
+    rng = np.random.default_rng(h * 1000 + w)
+    g = torch.Generator().manual_seed(h * 1000 + w)
+    c = torch.rand(3, h, w, generator=g) * 2 - 0.5
+    c.view(-1)[::17] = NAN
+    c.view(-1)[5::23] = INF
+    c.view(-1)[7::29] = -INF
+    d = torch.rand(1, h, w, generator=g) * 20 + 0.5
+    flat = d.view(-1)
+    for value in (0.0, -3.0, NAN, 1e-30, 3e38):
+        flat[torch.randint(0, flat.numel(), (max(1, flat.numel() // 40),), generator=g)] = value
+    v = torch.ones(1, h, w, dtype=torch.bool)
+    v[0, rng.integers(0, h, 12), rng.integers(0, w, 12)] = False
+    v[0, h // 2: h // 2 + 3, w // 2 - 2: w // 2 + 5] = False  # across tile borders
+    v[0, h - 1, w - 1] = v[0, h - 1, 0] = v[0, 0, w - 1] = False
+    taken = []
+    for k in (1, 2, 3, 5):
+        T = 1 << k
+        if max(h, w) <= T:
+            continue
+        holes = np.empty((-(-h // T), -(-w // T)), dtype=np.uint8)
+        ok = np.empty_like(holes)
+        pp_tile_scan_kernel(d.numpy()[0], v.numpy()[0].view(np.uint8), k, holes, ok)
+        taken.append(not np.any(holes & (1 - ok)))  # (a corner tile of one hole: not)
+        for fb in (0.1, 0.0, 0.5):
+            same_tree(f"push_pull tiles {h}x{w} k={k} fb={fb}",
+                      K.push_pull_fill(c, v, d, fb, tile_k=k), G.push_pull_fill(c, v, d, fb))
+    assert sum(taken) >= 2, taken
+    # fallbacks: a tile of holes only; a tile whose valid pixels are all sky
+    vb = v.clone()
+    vb[0, :4, :4] = False
+    ds = d.clone()
+    ds[0, :4, :4] = INF
+    vs = v.clone()
+    vs[0, 1, 1] = False
+    for args in ((c, vb, d), (c, vs, ds)):
+        same_tree(f"push_pull fallback {h}x{w}", K.push_pull_fill(*args, 0.1, tile_k=2),
+                  G.push_pull_fill(*args, 0.1))
+
+
 @pytest.mark.parametrize("h,w", [(5, 200), (3, 64), (2, 65), (4, 129)])
 def test_sample_where_skips_unselected_runs(h, w):
     """The fills' bilinear read (fgcli.kernels.ops._sample_where) skips runs of 64 pixels

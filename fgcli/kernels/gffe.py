@@ -765,6 +765,141 @@ def pp_final_kernel(color, depth, valid, xd, wdv, fxc, fxd, fwd, out_c, out_d):
             out_d[y, x] = depth[y, x] if v else dd
 
 
+# push-pull by tiles: the result at a hole is its colour chain's first level with weight
+# (and its depth chain's): the levels of its aligned 2**K x 2**K tile decide it whenever
+# that tile has a valid pixel and a valid one of finite depth (its level-K cell then has
+# both weights), so a frame whose holes all lie in such tiles needs the pyramid of those
+# tiles only, not of the frame (fgcli.kernels.ops.push_pull_fill).
+
+
+@njit(**KERNEL)
+def pp_tile_scan_kernel(depth, valid, K, holes, ok):
+    """Per aligned tile of 2**K pixels a side (holes, ok: (ceil(h / 2**K), ceil(w / 2**K))
+    uint8): holes = it has an invalid pixel, ok = it has a valid pixel and a valid one of
+    finite positive depth. (Per band of tile rows, the flags of each column in vectorised
+    row passes, then per tile: a loop per tile and row took 5-6 ms at 1080p.)"""
+    h, w = depth.shape
+    nty, ntx = holes.shape
+    T = np.int64(1) << K
+    for pty in prange(nty):
+        ty = np.int64(pty)
+        ah = np.zeros(w, dtype=np.uint8)
+        av = np.zeros(w, dtype=np.uint8)
+        af = np.zeros(w, dtype=np.uint8)
+        for y in range(ty * T, min(h, ty * T + T)):
+            for x in range(w):
+                d = depth[y, x]
+                v = valid[y, x] != U0
+                ah[x] |= U0 if v else np.uint8(1)
+                av[x] |= np.uint8(1) if v else U0
+                af[x] |= np.uint8(1) if v & (d > ZERO) & (d < INF) else U0
+        for tx in range(ntx):
+            nh = U0
+            nv = U0
+            nf = U0
+            for x in range(tx * T, min(w, tx * T + T)):
+                nh |= ah[x]
+                nv |= av[x]
+                nf |= af[x]
+            holes[ty, tx] = nh
+            ok[ty, tx] = nv & nf
+
+
+@njit(**KERNEL)
+def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d):
+    """push_pull_fill's result when every tile with a hole is ok (pp_tile_scan_kernel):
+    valid pixels keep their (sanitised) colour and raw depth (pp_final_kernel); in each
+    tile with holes, levels 1..K of the tile by pp_down_kernel's arithmetic (the same
+    2x2 blocks: tiles are aligned, and their rows / columns at the frame's last edge are
+    the frame's), then each hole takes the (sanitised) colour of its first level with
+    colour weight and the depth of its first level with depth weight, as the up pass
+    hands them down."""
+    h, w = depth.shape
+    nty, ntx = holes.shape
+    T = np.int64(1) << K
+    S = max(np.int64(1), T >> 1)
+    for pty in prange(nty):
+        ty = np.int64(pty)
+        y0 = ty * T
+        y1 = min(h, y0 + T)
+        for y in range(y0, y1):
+            for k in range(3):
+                for x in range(w):
+                    out_c[k, y, x] = sval_b(color[k, y, x])
+            for x in range(w):
+                out_d[y, x] = depth[y, x]
+        c0 = np.empty((3, T, T), dtype=np.float32)
+        d0 = np.empty((T, T), dtype=np.float32)
+        w0 = np.empty((T, T), dtype=np.float32)
+        e0 = np.empty((T, T), dtype=np.float32)
+        lc = np.empty((K + 1, 3, S, S), dtype=np.float32)
+        ld = np.empty((K + 1, S, S), dtype=np.float32)
+        lw = np.empty((K + 1, S, S), dtype=np.float32)
+        le = np.empty((K + 1, S, S), dtype=np.float32)
+        for tx in range(ntx):
+            if holes[ty, tx] == U0:
+                continue
+            x0 = tx * T
+            th = y1 - y0
+            tw = min(w, x0 + T) - x0
+            for y in range(th):  # level 0 of the tile: pp_prep_kernel's planes
+                for x in range(tw):
+                    for k in range(3):
+                        c0[k, y, x] = color[k, y0 + y, x0 + x]
+                    d = depth[y0 + y, x0 + x]
+                    fin = (d > ZERO) & (d < INF)
+                    v = valid[y0 + y, x0 + x] != U0
+                    d0[y, x] = d if fin else ZERO
+                    w0[y, x] = ONE if v else ZERO
+                    e0[y, x] = ONE if (v & fin) else ZERO
+            hk = th
+            wk = tw
+            for lv in range(1, K + 1):  # pp_down_kernel, in the tile
+                nh = (hk + 1) // 2
+                nw = (wk + 1) // 2
+                sc = c0 if lv == 1 else lc[lv - 1]
+                sd = d0 if lv == 1 else ld[lv - 1]
+                sw = w0 if lv == 1 else lw[lv - 1]
+                se = e0 if lv == 1 else le[lv - 1]
+                oc = lc[lv]
+                od = ld[lv]
+                ow = lw[lv]
+                oe = le[lv]
+                wp = wk // 2
+                for oy in range(nh):
+                    ya = 2 * oy
+                    r1 = ya + 1 < hk
+                    yb = ya + 1 if r1 else ya
+                    cnt2 = F32(2 if r1 else 1) * F32(2)
+                    for ox in range(wp):
+                        _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
+                                    2 * ox + 1, cnt2, True, r1, r1)
+                    for ox in range(wp, nw):
+                        _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
+                                    2 * ox, F32(2 if r1 else 1), False, r1, False)
+                hk = nh
+                wk = nw
+            for y in range(th):  # the holes: each chain's first level with weight
+                for x in range(tw):
+                    if w0[y, x] != ZERO:
+                        continue
+                    for lv in range(1, K + 1):
+                        cy = y >> lv
+                        cx = x >> lv
+                        if lw[lv, cy, cx] > ZERO:
+                            for k in range(3):
+                                out_c[k, y0 + y, x0 + x] = sval_b(lc[lv, k, cy, cx])
+                            break
+                    dd = INF
+                    for lv in range(1, K + 1):
+                        cy = y >> lv
+                        cx = x >> lv
+                        if le[lv, cy, cx] > ZERO:
+                            dd = ld[lv, cy, cx]
+                            break
+                    out_d[y0 + y, x0 + x] = dd
+
+
 # ----------------------------------------------------------------------------- hole fills
 
 

@@ -770,7 +770,8 @@ def _warm_kernels(families=None) -> tuple:
                     gffe.hist_traj_kernel, gffe.bits_count_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.max3_kernel,
-                    gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel)
+                    gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.reproject_mv_kernel,
+                    gffe.pp_tile_scan_kernel, gffe.pp_tiles_kernel)
     return kernels
 
 
@@ -1282,8 +1283,13 @@ def _warm_gffe(d) -> None:
     half = collect_background(c, d, v, cam, layers, cam, layer1_scale=2)
     project_background(layers, cam, cam, ~v, "bilinear")
     background_fill(c, d, mv, v, layers, cam, cam, "bilinear", c, d, mv, 0.5, True, True)
-    background_fill(c, d, mv, v, half, cam, cam, "nearest")  # (half-size layer 1)
-    push_pull_fill(c, v, d)
+    # (a half-size layer 1 with valid cells: an empty layer is not projected)
+    half = [half[0], dict(half[1], valid=torch.ones_like(half[1]["valid"]))]
+    background_fill(c, d, mv, v, half, cam, cam, "nearest")
+    push_pull_fill(c, v, d, tile_k=12)  # (a frame of one tile: the dense path)
+    one = torch.ones_like(v)
+    one[0, 0, 1] = False  # (one hole, in a 4 x 4 tile with valid finite depths: tiles)
+    push_pull_fill(c, one, d, tile_k=2)
     reproject_fill(c, v, d, c, d, cam, cam)
     fill_holes(c, d, mv, v, 0.1, "reproject", "clamp", True, c, d, cam, cam)
     vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
@@ -1704,22 +1710,41 @@ def median_depth(depth):
     return float(np.int32(bits_rank(d, top, rank)).view(np.float32))
 
 
-def push_pull_fill(color, valid, depth=None, far_bias=0.1):
+PP_TILE_K = 5  # push_pull_fill's tiles: 32 x 32 pixels
+
+
+def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K):
     """fgcli.ops.gffe.push_pull_fill (3-channel colour, with depth, far_bias >= 0) by the
-    push-pull kernels of fgcli.kernels.gffe, one pass per level and direction."""
+    push-pull kernels of fgcli.kernels.gffe, one pass per level and direction; or, when
+    every aligned 2**tile_k tile with a hole has a valid pixel and a valid finite depth
+    (and the frame is larger than a tile), the pyramids of those tiles alone
+    (pp_tiles_kernel: the same values; 12.4 -> 4.3 ms on the benchmark's blade frame,
+    7 holes in 2 of 2,040 tiles). Frames whose holes reach a tile without a valid finite
+    depth (a border strip of a moving camera, sky) take the frame's pyramid after the
+    0.3-0.5 ms scan."""
     ok = (_f32cpu(color) and color.shape[0] == 3 and color.shape[1] * color.shape[2] > 1
           and _f32cpu(depth) and tuple(depth.shape) == (1,) + tuple(color.shape[1:])
           and _boolcpu(valid, depth.shape) and float(far_bias) >= 0)
     if not ok:
         return G.push_pull_fill(color, valid, depth, far_bias)
     from fgcli.kernels.gffe import (pp_down_kernel, pp_final_kernel, pp_prep_kernel,
-                                    pp_up_kernel)
+                                    pp_tile_scan_kernel, pp_tiles_kernel, pp_up_kernel)
 
     h, w = color.shape[-2:]
     col, dep, val = _a(color), _a(depth)[0], _u8(valid)[0]
+    fb = F32(1.0 - float(far_bias))
+    T = 1 << int(tile_k)
+    if max(h, w) > T:  # (a frame of one tile: its top level is the tile's; the dense path)
+        holes = np.empty((-(-h // T), -(-w // T)), dtype=np.uint8)
+        tok = np.empty_like(holes)
+        pp_tile_scan_kernel(dep, val, int(tile_k), holes, tok)
+        if not np.any(holes & (1 - tok)):
+            out_c, out_d = _empty(3, h, w), _empty(1, h, w)
+            pp_tiles_kernel(col, dep, val, fb, int(tile_k), holes, out_c.numpy(),
+                            out_d.numpy()[0])
+            return out_c, out_d
     xd0, w0, wd0 = (np.empty((h, w), dtype=np.float32) for _ in range(3))
     pp_prep_kernel(dep, val, xd0, w0, wd0)
-    fb = F32(1.0 - float(far_bias))
     levels = [(col, xd0, w0, wd0)]
     while h > 1 or w > 1:
         h, w = (h + 1) // 2, (w + 1) // 2
