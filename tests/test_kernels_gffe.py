@@ -659,6 +659,28 @@ def test_dilated_positions_matches_the_reference(h, w):
                               K.dilated_positions(*args), G.dilated_positions(*args))
 
 
+@pytest.mark.parametrize("h,w", [(12, 40), (33, 51), (20, 130)])
+def test_fill_holes_reprojects_the_rows_with_holes_only(h, w):
+    """fill_holes computes the proxy points of rows with holes only (the other rows' are
+    never read): bit-identical to the same kernels over every row (the reference's
+    composition of reproject_fill's and push_pull_fill's kernels), with holes in a few
+    rows, sky in rows with and without holes (the sky pass's sqrt spans the same rows),
+    and no hole at all."""
+    f = _hard_frames(h, w, h * 100 + w + 21)
+    d = f["d1"].clone()
+    d[0, : h // 3] = INF  # sky rows, some of them with holes
+    v = torch.ones(1, h, w, dtype=torch.bool)
+    for r in (1, h // 2, h - 1):
+        v[0, r, (r * 7) % w: (r * 7) % w + 5] = False
+    parts = (K.project_border, K.push_pull_fill, K.reproject_fill)
+    for vv in (v, torch.ones_like(v)):
+        for off in ("clamp", "skip"):
+            args = (f["c1"], d, f["mv1"], vv, 0.1, "reproject", off, True, f["ch"], f["dh"],
+                    f["cam1"], f["cam_x"], None)
+            same_tree(f"fill_holes rows {h}x{w} {off}", K.fill_holes(*args),
+                      G.fill_holes(*args, parts=parts))
+
+
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51)])
 def test_fill_holes_matches_the_reference(h, w):
     """The hole-fill stage's op: push-pull, the vectors and the reprojection (kernels),

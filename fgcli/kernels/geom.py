@@ -33,6 +33,7 @@ OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
 SKY_SPAN = 64  # the sky passes skip runs of this many pixels that hold no sky
 ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
+U0 = np.uint8(0)
 
 
 # ----------------------------------------------------------------------------- unproject
@@ -243,14 +244,24 @@ def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
 # ----------------------------------------------------------------------------- reproject
 
 @njit(**KERNEL)
-def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, ook, ss, nsky):
+def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, ook, ss, nsky,
+                     rows, some):
     """project(unproject(depth, samples), camera 2) without the positions in memory: per
     row, unproject_kernel's surface points into row buffers, then project_kernel's loop
     on them (each loop as vectorised as in its own kernel; the positions stay in cache).
     ss, nsky as unproject_kernel's; the sky pixels' outputs are finished by
-    reproject_sky_kernel."""
+    reproject_sky_kernel. With ``some``, only the rows y with rows[y] != 0 (uint8 (h,));
+    the others get their sky count alone (the sky pass then takes torch.sqrt of the same
+    span of rows, so the rows computed come out the same) and garbage outputs."""
     h, w = depth.shape
     for y in prange(h):
+        if some and rows[y] == U0:
+            dr = depth[y]
+            n = 0
+            for x in range(w):
+                n += np.int64(dr[x] == INF)
+            nsky[y] = n
+            continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
         _ndc_row(px, py, y, kx, ky, nxr, nyr)
@@ -285,12 +296,15 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
 
 @njit(**KERNEL)
 def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx, opy, od,
-                         ook):
+                         ook, rows, some):
     """reproject_kernel's sky pixels on rows y0 .. y0 + len(nrm) - 1 (nrm: torch.sqrt of
-    their squared norms): the direction (unproject_sky_kernel's), projected."""
+    their squared norms): the direction (unproject_sky_kernel's), projected. With
+    ``some``: the rows reproject_kernel computed only."""
     w = depth.shape[1]
     for r in prange(nrm.shape[0]):
         y = y0 + r
+        if some and rows[y] == U0:
+            continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
         _ndc_row(px, py, y, kx, ky, nxr, nyr)

@@ -1214,10 +1214,12 @@ def _unproject_into(depth, cam, s, size, o):
         unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o)
 
 
-def reproject(depth, cam_from, cam_to, size, px=None, py=None):
+def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None):
     """project(unproject(depth, cam_from, px, py, size), cam_to, size) by
     geom.reproject_kernel (+ reproject_sky_kernel where there is sky): the same values,
-    the positions never written out."""
+    the positions never written out. rows: an (h,) uint8 array; only the rows it marks
+    are computed (the others' outputs: garbage; the sky pass's torch.sqrt still spans
+    the same rows, so the computed rows are the same)."""
     s = _samples(depth, px, py) if _geom_ok(depth, size) else None
     if s is None:
         return project(unproject(depth, cam_from, px, py, size), cam_to, size)
@@ -1232,11 +1234,13 @@ def reproject(depth, cam_from, cam_to, size, px=None, py=None):
     opx, opy, od = _empty(h, w), _empty(h, w), _empty(h, w)
     ook = _empty(h, w, dtype=torch.bool)
     outs = (opx.numpy(), opy.numpy(), od.numpy(), ook.numpy())
-    reproject_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, *outs, ss, nsky)
+    some = rows is not None
+    rows = rows if some else np.zeros(1, dtype=np.uint8)
+    reproject_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, *outs, ss, nsky, rows, some)
     sky = _sky_rows(nsky, ss)
     if sky is not None:
         reproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, sky[1], sky[0],
-                             *outs)
+                             *outs, rows, some)
     return opx, opy, od, ook
 
 
@@ -1810,13 +1814,15 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
     from fgcli.kernels.gffe import reproject_mv_kernel
 
     c, d = push_pull_fill(color, valid, depth, far_bias)
-    px, py, _, pok = reproject(d, cam_x, cam1, (H, W))
+    vu = _u8(valid)[0]
+    # the proxy points of the rows with holes only (no other pixel reads them)
+    rows = (vu.min(axis=1) == 0).view(np.uint8) if H * W else np.zeros(H, dtype=np.uint8)
+    px, py, _, pok = reproject(d, cam_x, cam1, (H, W), rows=rows)
     took = _empty(1, H, W, dtype=torch.bool)
     flow, out = _empty(2, H, W), _empty(2, H, W)
-    vu = _u8(valid)[0]
     reproject_mv_kernel(px.numpy(), py.numpy(), _u8(pok), vu, _a(d)[0], _a(depth1)[0],
                         offscreen == "clamp", F32(1.0 - 0.05), _a(mv), _u8(took)[0],
-                        flow.numpy(), out.numpy())
+                        flow.numpy(), out.numpy(), rows, True)
     c, _ = _sample_where(color1, flow, took, base=c, flow_out=False, in_place=True)
     holes = torch.tensor(int(vu.size - np.count_nonzero(vu)), dtype=torch.int64)
     return c, d, out, holes
