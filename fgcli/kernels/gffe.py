@@ -854,7 +854,9 @@ def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d):
                     e0[y, x] = ONE if (v & fin) else ZERO
             hk = th
             wk = tw
-            for lv in range(1, K + 1):  # pp_down_kernel, in the tile
+            # pp_down_kernel, in the tile (its row loops written out again: the frame's
+            # kernel keeps them in its body, where LLVM vectorises them; not in a helper)
+            for lv in range(1, K + 1):
                 nh = (hk + 1) // 2
                 nw = (wk + 1) // 2
                 sc = c0 if lv == 1 else lc[lv - 1]
