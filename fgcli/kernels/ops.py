@@ -1738,7 +1738,8 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K):
     col, dep, val = _a(color), _a(depth)[0], _u8(valid)[0]
     fb = F32(1.0 - float(far_bias))
     T = 1 << int(tile_k)
-    if max(h, w) > T:  # (a frame of one tile: its top level is the tile's; the dense path)
+    # (a frame of one tile has the tile's top level: the dense path)
+    if tile_k >= 1 and max(h, w) > T:
         holes = np.empty((-(-h // T), -(-w // T)), dtype=np.uint8)
         tok = np.empty_like(holes)
         pp_tile_scan_kernel(dep, val, int(tile_k), holes, tok)
@@ -1816,7 +1817,7 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
     c, d = push_pull_fill(color, valid, depth, far_bias)
     vu = _u8(valid)[0]
     # the proxy points of the rows with holes only (no other pixel reads them)
-    rows = (vu.min(axis=1) == 0).view(np.uint8) if H * W else np.zeros(H, dtype=np.uint8)
+    rows = (vu.min(axis=1) == 0).view(np.uint8)
     px, py, _, pok = reproject(d, cam_x, cam1, (H, W), rows=rows)
     took = _empty(1, H, W, dtype=torch.bool)
     flow, out = _empty(2, H, W), _empty(2, H, W)

@@ -212,6 +212,14 @@ def _resolve_px(k, x, y, quad, w0, depth1, mv1, disp, ca, w, hw, to1, to0, dout,
     else:
         dx = ax * ca
         dy = ay * ca
+    _resolve_write(k, x, y, i, ax, ay, dx, dy, w0, to1, to0, dout, valid, source)
+
+
+@njit(**INLINE)
+def _resolve_write(k, x, y, i, ax, ay, dx, dy, w0, to1, to0, dout, valid, source):
+    """The resolve's outputs at target (x, y) from its winning key k (I64_MAX: a hole),
+    the source's flat index i, vector (ax, ay) and displacement (dx, dy)."""
+    ok = k != I64_MAX
     source[y, x] = i if ok else I32(-1)
     valid[y, x] = ok
     dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
@@ -355,14 +363,8 @@ def _resolve_from(k, x, y, quad, w0, T, ca, w, to1, to0, dout, valid, source):
     else:
         dx = ax * ca
         dy = ay * ca
-    source[y, x] = mad32(sy, w, sx) if ok else I32(-1)
-    valid[y, x] = ok
-    dout[y, x] = np.int32(k >> 32).view(np.float32) if ok else INF
-    to1[0, y, x] = -dx if ok else F32(0.0)
-    to1[1, y, x] = -dy if ok else F32(0.0)
-    if w0:
-        to0[0, y, x] = ax - dx if ok else F32(0.0)
-        to0[1, y, x] = ay - dy if ok else F32(0.0)
+    _resolve_write(k, x, y, mad32(sy, w, sx), ax, ay, dx, dy, w0, to1, to0, dout, valid,
+                   source)
 
 
 @njit(**KERNEL)
