@@ -646,12 +646,20 @@ def test_collect_background_matches_the_reference(h, w):
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51), (12, 64)])
 def test_dilated_positions_matches_the_reference(h, w):
     """The position stage's dilation + Eq. 1 in one kernel: k 2-4, linear / quadratic,
-    with and without the dynamic mask, several alphas."""
+    with and without the dynamic mask, several alphas. The dynamic masks include ones with
+    dynamic pixels in a few rows only (the kernel dilates the rows beside them only), at
+    the frame's first and last rows, and none."""
     f = _hard_frames(h, w, h * 100 + w + 3)
     for k in (2, 3, 4):
         traj, dyn = G.track_history(f["dh"], f["mh"], f["cam1"], f["cam0"], f["d0"], k=k)
+        sparse = torch.zeros_like(dyn)
+        sparse[:, h // 2] = True
+        sparse[:, h - 1, w // 2:] = True
+        edge = torch.zeros_like(dyn)
+        edge[:, 0, :w // 2 + 1] = True
+        masks = (dyn, None, sparse, edge, torch.zeros_like(dyn), sparse | dyn)
         for d1 in (f["d1"], f["dh"]):
-            for dd in (dyn, None):
+            for dd in masks:
                 for a, motion in ((0.5, "linear"), (3.0, "linear"), (0.5, "quadratic"),
                                   (1.0, "quadratic")):
                     args = (traj, d1, f["cam1"], dd, a, motion)

@@ -17,6 +17,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
+from fgcli.kernels.geom import _surface_px
 from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -253,6 +254,100 @@ def dilate_pos_kernel(traj, src, dyn, has_dyn, pd, a, quad, cq, out):
                 rq = r + cq * ((p0c - two * q1) + q2)
                 r = rq if quad else r
                 out[c, y, x] = r if same else p0c
+
+
+DYN_SPAN = 32  # dilate_dyn_pos_kernel's unit of skipping
+
+
+@njit(**INLINE)
+def _eq1(p0c, q1, q2, a, quad, cq, same):
+    """Eq. 1 of one coordinate (+ the quadratic term when quad), P_0 where the kinds
+    differ: estimate_positions' arithmetic."""
+    r = p0c + a * (p0c - q1)
+    rq = r + cq * ((p0c - F32(2.0) * q1) + q2)
+    r = rq if quad else r
+    return r if same else p0c
+
+
+@njit(**KERNEL)
+def dilate_dyn_pos_kernel(traj, depth, dyn, gx, gy, kx, ky, A, M, a, quad, cq, out):
+    """dilate_pos_kernel for dilate=dynamic, the dilation and its unprojection computed
+    here where they can matter. A pixel moves with its 3x3 nearest-depth winner only when
+    it is static and the winner dynamic, so every pixel first takes Eq. 1 of its own
+    trajectory (one vectorised pass per row), and in spans of DYN_SPAN pixels whose 3x3
+    neighbourhood holds a dynamic pixel each static pixel then finds its winner as
+    dilate3_kernel does (sanitised depths, +inf outside, taps in row-major order, the
+    centre keeps ties) and, where that winner is dynamic, takes its depth on its own ray
+    as unproject_kernel does (_surface_px: w = 0 for the sky, which is never taken, so no
+    sky pass) and moves as the winner moves (dilate_pos_kernel's P_0', P_1', P_2').
+    depth (h, w) frame 1's; gx (1, w), gy (h, 1) the pixel centres; kx, ky, A, M
+    unproject_kernel's coefficients."""
+    h, w = depth.shape
+    i2 = 2 if quad else 1  # (k = 2: a plane that exists, unused)
+    tf = traj.reshape((traj.shape[0], 4, h * w))
+    df = dyn.reshape(h * w)
+    for pr in prange(h):
+        y = np.int64(pr)
+        for x in range(w):
+            p03 = traj[0, 3, y, x]
+            same = (traj[1, 3, y, x] == p03) & ((traj[i2, 3, y, x] == p03) | (not quad))
+            for c in range(3):
+                out[c, y, x] = _eq1(traj[0, c, y, x], traj[1, c, y, x], traj[i2, c, y, x],
+                                    a, quad, cq, same)
+            out[3, y, x] = p03
+        ya = max(y - 1, 0)
+        yb = min(y + 2, h)
+        ny = ONE - gy[y, 0] * ky
+        for xs in range((w + DYN_SPAN - 1) // DYN_SPAN):
+            xa = np.int64(xs) * DYN_SPAN
+            xb = min(xa + DYN_SPAN, w)
+            m = U0
+            for yy in range(ya, yb):
+                for xx in range(max(xa - 1, 0), min(xb + 1, w)):
+                    m |= dyn[yy, xx]
+            if m == U0:
+                continue
+            for x in range(xa, xb):
+                if dyn[y, x] != U0 or not traj[0, 3, y, x] > ZERO:
+                    continue
+                b = INF
+                c = np.int64(4)
+                for j in range(9):
+                    yy = y + j // 3 - 1
+                    xx = x + j % 3 - 1
+                    if yy >= 0 and yy < h and xx >= 0 and xx < w:
+                        d = sdepth_b(depth[yy, xx])
+                        if d < b:
+                            b = d
+                            c = np.int64(j)
+                dc = sdepth_b(depth[y, x])
+                if not b < dc:  # the centre keeps ties: it is its own winner (static)
+                    continue
+                n = (y + c // 3 - 1) * w + x + c % 3 - 1
+                t03 = tf[0, 3, n]
+                if df[n] == U0 or not t03 > ZERO:
+                    continue
+                nx = gx[0, x] * kx - ONE
+                s0, s1, s2, s3, _ = _surface_px(nx, ny, b, A, M)
+                if s3 > ZERO:
+                    out[0, y, x] = s0
+                    out[1, y, x] = s1
+                    out[2, y, x] = s2
+                    out[3, y, x] = s3
+                else:
+                    for cc in range(4):
+                        out[cc, y, x] = traj[0, cc, y, x]
+                ok1 = tf[1, 3, n] == t03
+                ok2 = tf[i2, 3, n] == t03
+                p03 = out[3, y, x]
+                q13 = (p03 - (t03 - tf[1, 3, n])) if ok1 else traj[1, 3, y, x]
+                q23 = (p03 - (t03 - tf[i2, 3, n])) if ok2 else traj[i2, 3, y, x]
+                same = (q13 == p03) & ((q23 == p03) | (not quad))
+                for cc in range(3):
+                    p0c = out[cc, y, x]
+                    q1 = (p0c - (tf[0, cc, n] - tf[1, cc, n])) if ok1 else traj[1, cc, y, x]
+                    q2 = (p0c - (tf[0, cc, n] - tf[i2, cc, n])) if ok2 else traj[i2, cc, y, x]
+                    out[cc, y, x] = _eq1(p0c, q1, q2, a, quad, cq, same)
 
 
 # ----------------------------------------------------------------------------- background
