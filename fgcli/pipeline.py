@@ -120,6 +120,8 @@ class Pipeline:
                 continue
             cls = get_stage(st.use, f"{self.path}:{st.line}")
             out.append((st, cls(where=f"{self.path}:{st.line}", **st.opts)))
+        for spec, stage in out:
+            stage.configure(out, f"{self.path}:{spec.line}")
         check_flow(self, mode, out)
         return out
 

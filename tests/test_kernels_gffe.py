@@ -615,7 +615,7 @@ def test_median_depth_matches_the_reference():
     cases = [torch.tensor([[[NAN]]]), torch.full((1, 3, 4), INF), torch.zeros(1, 2, 2),
              torch.tensor([[[2.0, 1.0]]]), torch.tensor([[[1e-45, 3e38, 5.0, 5.0]]])]
     g = torch.Generator().manual_seed(0)
-    for h, w in [(1, 1), (1, 9), (7, 1), (9, 14), (33, 51)]:
+    for h, w in [(1, 1), (1, 9), (7, 1), (9, 14), (33, 51), (75, 97)]:  # (the last: blocks)
         for s in (50.0, 1e-3, 1e30):
             cases.append(hard_depth(h, w, rng, s))
         cases.append((torch.rand(1, h, w, generator=g) * 4).round())

@@ -765,9 +765,9 @@ def _warm_kernels(families=None) -> tuple:
                     gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                     gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
-                    gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_test_kernel,
-                    gffe.hist_match_kernel,
-                    gffe.hist_traj_kernel, gffe.bits_count_kernel,
+                    gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_p_kernel,
+                    gffe.hist_match_kernel, gffe.hist_sel_kernel, gffe.select_rows_kernel,
+                    gffe.bits_count_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.max3_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.dilate_dyn_pos_kernel,
@@ -1320,10 +1320,11 @@ def _with_geom(name: str):
 
 def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, threshold=0.5,
                   first_frame="mv", lookup="match", match_tol=0.1, geom=None):
-    """fgcli.ops.gffe.track_history with a camera history: unproject / project (geom
-    kernels), then the static test, the match search and the trajectory as kernels
-    (fgcli.kernels.gffe.hist_*); the logarithms of the search by torch.log on the tensors
-    the reference takes them of. Without a history (first frame): the reference (GEOM)."""
+    """fgcli.ops.gffe.track_history with a camera history: P_0's unprojection, its
+    projection and the static test in one kernel, then the match search and the previous
+    frame's points at the dynamic pixels only (fgcli.kernels.gffe.hist_*); the logarithms
+    of the search by torch.log on the tensors the reference takes them of. Without a
+    history (first frame): the reference (GEOM)."""
     h, w = depth1.shape[-2:] if isinstance(depth1, torch.Tensor) else (0, 0)
     ok = (cam0 is not None and (depth0 is not None or prev is not None)
           and _f32cpu(depth1) and depth1.shape[0] == 1 and _f32cpu(mv1)
@@ -1335,43 +1336,51 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     if not ok:
         return G.track_history(depth1, mv1, cam1, cam0, depth0, prev, k, threshold,
                                first_frame, lookup, match_tol, geom=GEOM)
-    from fgcli.kernels.gffe import hist_match_kernel, hist_test_kernel, hist_traj_kernel
+    from fgcli.kernels.geom import unproject_sky_kernel
+    from fgcli.kernels.gffe import (hist_match_kernel, hist_p_kernel, hist_sel_kernel,
+                                    select_rows_kernel)
 
-    # P_0 is unprojected straight into the trajectory (copying it there cost ~2 ms)
+    # P_0 is unprojected straight into the trajectory, tested there (fgcli.kernels.gffe's
+    # history notes), then copied into the older planes
     traj = _empty(k, 4, h, w)
-    p = traj[0]
-    _unproject_into(depth1, cam1, _grid_half(h, w), (h, w), p.numpy())
-    xh, yh, _, pok = project(p, cam0, (h, w))
-    xp, yp = _empty(h, w), _empty(h, w)
+    pa = traj[0].numpy()
+    d1a = _a(depth1)[0]
+    gx, gy = _grid_half(h, w)
+    kx, ky, A, M = _unproject_coefs(cam1, (h, w))
+    V, P, hw, hh = _project_coefs(cam0, (h, w))
+    ss = np.empty((h, w), dtype=np.float32)
+    nsky = np.empty(h, dtype=np.int64)
+    xp, yp = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     use = np.empty((h, w), dtype=np.uint8)
     idx = np.empty((h, w), dtype=np.int64)
-    d0g = _empty(1, h, w)
-    pa = p.numpy()
-    d0a = _a(depth0)[0] if depth0 is not None else pa[3]  # (stand-in: read, unused)
-    hist_test_kernel(pa[3], xh.numpy(), yh.numpy(), _u8(pok), _a(mv1),
-                     F32(threshold * threshold), d0a, xp.numpy(), yp.numpy(), use, idx,
-                     d0g.numpy()[0])
+    nuse = np.empty(h, dtype=np.int64)
+    hist_p_kernel(d1a, gx, gy, kx, ky, A, M, V, P, hw, hh, _a(mv1), F32(threshold * threshold),
+                  pa, ss, nsky, xp, yp, use, idx, nuse)
+    sky = _sky_rows(nsky, ss)
+    if sky is not None:
+        unproject_sky_kernel(d1a, gx, gy, kx, ky, A, M, sky[1], sky[0], pa)
+    traj[1:] = traj[0]
+    dyn = torch.zeros(1, h, w, dtype=torch.bool)
+    end = np.cumsum(nuse)
+    if end[-1] == 0:
+        return traj, dyn
+    sel = np.empty(int(end[-1]), dtype=np.int64)
+    select_rows_kernel(use, end, sel)
     fb = np.zeros((h, w), dtype=np.uint8)
-    has_fb = False
     if lookup == "match" and depth0 is not None:
-        sel = torch.from_numpy(use.view(np.bool_)).reshape(-1).nonzero().squeeze(1)
-        if sel.numel():
-            # (in place on the first op's result, and frame 1's at the selected pixels only:
-            # the same element-wise values as the reference's chain)
-            ld0 = torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min_(1e-30).log_()
-            ld0 = ld0.view(-1)
-            ld1 = torch.nan_to_num(depth1[0].reshape(-1)[sel], nan=0.0, posinf=1e30) \
-                .clamp_min_(1e-30).log_()
-            hist_match_kernel(sel.numpy(), _a(ld0), _a(ld1), xp.numpy(), yp.numpy(), d0a,
-                              F32(1e-7), F32(np.log1p(match_tol)), idx, d0g.numpy()[0], fb)
-            has_fb = bool(fb.any())
-    from_prev = depth0 is None
-    p1 = p if from_prev else unproject(d0g, cam0, xp, yp, (h, w))
-    pf = unproject(depth1, cam0, xp, yp, (h, w)) if has_fb else p
+        # (the logarithms: frame 1's at the selected pixels only, each the same element-wise
+        # value as the reference's chain)
+        ld0 = torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min_(1e-30).log_()
+        st = torch.from_numpy(sel)
+        ld1 = torch.nan_to_num(depth1[0].reshape(-1)[st], nan=0.0, posinf=1e30) \
+            .clamp_min_(1e-30).log_()
+        hist_match_kernel(sel, _a(ld0.view(-1)), _a(ld1), xp, yp, F32(1e-7),
+                          F32(np.log1p(match_tol)), idx, fb)
+    kx0, ky0, A0, M0 = _unproject_coefs(cam0, (h, w))
     pv = _a(prev) if prev is not None else pa[None]
-    dyn = _empty(1, h, w, dtype=torch.bool)
-    hist_traj_kernel(pa, use, idx, fb, p1.numpy(), from_prev, pf.numpy(), pv,
-                     prev.shape[0] if prev is not None else 0, traj.numpy(), _u8(dyn)[0])
+    hist_sel_kernel(sel, pa, idx, fb, d1a, _a(depth0)[0] if depth0 is not None else d1a,
+                    depth0 is None, xp, yp, kx0, ky0, A0, M0, pv,
+                    prev.shape[0] if prev is not None else 0, traj.numpy(), _u8(dyn)[0])
     return traj, dyn
 
 
@@ -1425,8 +1434,9 @@ def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place
 
 
 def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True, geom=None):
-    """fgcli.ops.gffe.warp_positions: project (geom kernel), splat_motion and gap_fill
-    (their kernels), the bilinear read and the masking in one kernel."""
+    """fgcli.ops.gffe.warp_positions: the projection and the splat vectors in one kernel,
+    splat_motion and gap_fill (their kernels), the bilinear read and the masking in one
+    kernel."""
     if filter != "bilinear" or not (_f32cpu(color1) and color1.shape[0] == 3
                                     and _f32cpu(positions) and positions.shape[0] == 4
                                     and positions.shape[1:] == color1.shape[1:]):
@@ -1434,10 +1444,10 @@ def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True,
     from fgcli.kernels.gffe import offsets_kernel
 
     h, w = color1.shape[-2:]
-    px, py, dn, ok = project(positions, cam_x, (h, w))
-    disp = _empty(2, h, w)
-    offsets_kernel(px.numpy(), py.numpy(), _u8(ok), disp.numpy())
-    res = splat_motion(dn[None], disp, None, 1.0, model="linear", mode="extrap")
+    disp, dn = _empty(2, h, w), _empty(1, h, w)
+    V, P, hw, hh = _project_coefs(cam_x, (h, w))
+    offsets_kernel(_a(positions), V, P, hw, hh, disp.numpy(), dn.numpy())
+    res = splat_motion(dn, disp, None, 1.0, model="linear", mode="extrap")
     if crack_fill:
         res = gap_fill(res, 0.01, "nearest", in_place=True)  # (res: this call's own scratch)
     col, mv = _sample_where(color1, res.to1, res.valid)

@@ -97,6 +97,11 @@ class Stage:
             return opts[item]
         raise AttributeError(item)
 
+    def configure(self, built: list, where: str) -> None:
+        """Called once a mode's stages are built (built: every (spec, stage) of the mode,
+        in order; where: this stage's file:line): a stage may set what depends on another
+        stage's options here, or raise UsageError when they conflict."""
+
     def needed(self, ctx: dict, facts: dict) -> tuple[bool, str]:
         """Whether the stage must run on this frame; (False, reason) lets the runner skip it.
         A skipped stage's outputs come from skip(ctx)."""

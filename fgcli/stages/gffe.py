@@ -11,7 +11,7 @@ Without a RunState (a single call), the state lives for that call only.
 """
 from __future__ import annotations
 
-from fgcli.errors import InputError
+from fgcli.errors import InputError, UsageError
 from fgcli.kernels import op
 from fgcli.stages.base import Option, Stage, register
 
@@ -58,8 +58,10 @@ class GffeHistory(Stage):
     optional_inputs = ("camera1", "camera0", "depth0", "state", "number1")
     outputs = ("traj", "dynamic")
     options = (
-        Option("k", "int", 3, "trajectory length (2 = Eq. 1; 3 also feeds motion=quadratic)",
-               range=(2, 4)),
+        Option("k", "int", 0, "trajectory length: 2 = Eq. 1, 3 also feeds "
+               "motion=quadratic; 0 = what the pipeline's position stage reads (a longer "
+               "trajectory costs its copies in every frame and nothing reads them)",
+               range=(0, 4)),
         Option("threshold", "float", 0.5, "static test: pixels between the camera-only and "
                "the MV reprojection above which a pixel is dynamic", range=(0.0, 1e6)),
         Option("first_frame", "choice", "mv", "empty history (first frame, after a cut): "
@@ -75,6 +77,15 @@ class GffeHistory(Stage):
     )
     history = None  # the trajectories carry over every earlier rendered frame
     uses_kernels = True
+
+    def configure(self, built, where):
+        quad = any(isinstance(st, GffePosition) and st.motion == "quadratic" for _, st in built)
+        if self.opts["k"] == 0:
+            self.opts["k"] = 3 if quad else 2
+        elif self.opts["k"] < 2 or (quad and self.opts["k"] < 3):
+            raise UsageError(f"{where}: stage '{self.name}': k = {self.opts['k']}: expected 2 "
+                             f"or more (3 or more for the position stage's motion=quadratic), "
+                             f"or 0 (what the position stage reads)")
 
     def needed(self, ctx, facts):
         _need_camera(ctx, self.name)
