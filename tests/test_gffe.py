@@ -179,6 +179,22 @@ def test_dilation_moves_an_edge_pixel_with_its_object():
     assert torch.equal(out[:, :, 8:16, 8:16], traj[:, :, 8:16, 8:16])  # dynamic: its own
 
 
+def test_history_keeps_as_many_positions_as_the_position_stage_reads():
+    """k = 0 (the pipeline file's): two positions for Eq. 1, three for motion=quadratic; an
+    explicit k too short for the position stage is a usage error naming the file and line."""
+    from fgcli.errors import UsageError
+
+    def k_of(variant):
+        return [st.k for _, st in pl.load(variant).build("extrap") if st.name == "gffe_history"]
+
+    assert k_of("gffe-extrap") == [2]
+    assert k_of("gffe-extrap:motion=quadratic") == [3]
+    assert k_of("gffe-extrap:history.k=4") == [4]
+    for bad in ("gffe-extrap:motion=quadratic,history.k=2", "gffe-extrap:history.k=1"):
+        with pytest.raises(UsageError, match=r"gffe-extrap\.toml:\d+: stage 'gffe_history'"):
+            pl.load(bad)
+
+
 def test_quadratic_positions_are_exact_for_constant_acceleration():
     p = lambda t: torch.tensor([t * t, 2.0 * t, 0.0, 1.0]).view(4, 1, 1)  # noqa: E731
     traj = torch.stack([p(0.0), p(-1.0), p(-2.0)])
