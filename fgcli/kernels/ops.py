@@ -11,7 +11,7 @@ import torch
 
 from fgcli import ops as R
 from fgcli.kernels import reference as RF
-from fgcli.ops._util import (ALPHA_MAX, aux, check_alpha, check_same,
+from fgcli.ops._util import (ALPHA_MAX, any_set, aux, check_alpha, check_same,
                              check_tensor)
 
 F32 = np.float32
@@ -1544,7 +1544,7 @@ def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes=None):
     layer without a valid cell is not projected at all (its splat: empty everywhere, as
     _splat_min would make it; ~5 ms per 1080p frame of the stateless benchmark, where
     layer 1 is always empty)."""
-    empty = [not bool(lay["valid"].any()) for lay in layers]
+    empty = [not any_set(lay["valid"]) for lay in layers]  # (numpy: early exit)
     want0 = want1 = None
     if holes is not None:
         from fgcli.kernels.gffe import cells_of_kernel
