@@ -708,3 +708,30 @@ def test_fill_holes_matches_the_reference(h, w):
             args = (col, dep, mv, v, fb, mode, off, True, f["ch"], f["dh"], c1, cx, bd)
             close_tree(f"fill_holes {h}x{w} {fb} {mode} {off} {bd is not None} {cams}",
                       K.fill_holes(*args), G.fill_holes(*args))
+
+
+@pytest.mark.parametrize("h,w,sc", [(1, 1, 1.0), (9, 14, 1.0), (33, 51, 1.0), (33, 51, 2.0)])
+def test_splat_min_with_want_matches_the_full_splat_at_want_cells(h, w, sc):
+    """The want path sets and reads buf at want cells only: there it must give what the
+    full splat (itself checked against the torch reference) gives; elsewhere empty."""
+    g = torch.Generator().manual_seed(h * 7 + w)
+    hs, ws = (h, w) if sc == 1.0 else (2 * h, 2 * w)
+    th, tw = (h, w)
+    px = torch.rand(hs, ws, generator=g) * (tw + 4) * sc - 2 * sc
+    py = torch.rand(hs, ws, generator=g) * (th + 4) * sc - 2 * sc
+    dn = torch.rand(1, hs, ws, generator=g) * 10
+    dn.view(-1)[:: 11] = NAN
+    dn.view(-1)[4:: 17] = INF
+    use = torch.rand(hs, ws, generator=g) < 0.8
+    ref_src, ref_dep = G._splat_min(torch.floor(px / sc), torch.floor(py / sc), dn, use, th, tw)
+    full_src, full_dep = K._splat_min(px, py, sc, dn, use, th, tw)
+    assert torch.equal(full_src.reshape(th, tw), ref_src.reshape(th, tw))
+    assert torch.equal(full_dep.reshape(th, tw), ref_dep.reshape(th, tw))
+    for frac in (0.0, 0.3, 1.0):
+        want = (np.random.default_rng(w).random((th, tw)) < frac).astype(np.uint8)
+        src, dep = K._splat_min(px, py, sc, dn, use, th, tw, want)
+        m = torch.from_numpy(want.astype(bool))
+        assert torch.equal(src.reshape(th, tw)[m], full_src.reshape(th, tw)[m])
+        assert torch.equal(dep.reshape(th, tw)[m], full_dep.reshape(th, tw)[m])
+        assert (src.reshape(th, tw)[~m] == -1).all()
+        assert torch.isinf(dep.reshape(th, tw)[~m]).all()

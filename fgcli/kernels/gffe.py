@@ -372,15 +372,23 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
 
     has_want: only target cells with want (h * w,) uint8 set are splatted (the others come
     out empty). For a caller that reads the result at those cells only (the holes of
-    background_fill) it is the same there, and the scatter skips the rest."""
+    background_fill) it is the same there, and the scatter skips the rest; buf is then
+    neither set nor read at the other cells (a 1080p frame's few holes: ~2 ms less)."""
     hs, ws = dn.shape
     n = h * w
     hm1 = F32(h - 1)
     wm1 = F32(w - 1)
     wf = F32(w)
     hf = F32(h)
-    for i in prange(n):
-        buf[i] = I64_MAX
+    for pr in prange(h):
+        r = np.int64(pr) * w
+        if has_want:
+            for x in range(w):
+                if want[r + x] != U0:
+                    buf[r + x] = I64_MAX
+        else:
+            for x in range(w):
+                buf[r + x] = I64_MAX
     same = (hs == h) & (ws == w)
     bh = max(8, (hs + 31) // 32)  # band height
     nband = (hs + bh - 1) // bh
@@ -438,6 +446,17 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
                            (r + x))
     for pr in prange(h):
         y = np.int64(pr)
+        if has_want:
+            for x in range(w):
+                src[y, x] = np.int64(-1)
+                dep[y, x] = INF
+            for x in range(w):
+                if want[y * w + x] != U0:
+                    k = buf[y * w + x]
+                    if k != I64_MAX:
+                        src[y, x] = k & np.int64(0xFFFFFFFF)
+                        dep[y, x] = np.int32(k >> 32).view(np.float32)
+            continue
         for x in range(w):
             k = buf[y * w + x]
             hit = k != I64_MAX
