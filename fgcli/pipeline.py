@@ -461,9 +461,12 @@ def run_stages(stages: list[tuple[StageSpec, Stage]], ctx: dict, timings: Timing
 
 def _borrowed(ctx: dict) -> dict:
     """A copy of ctx for measuring a skipped stage: results an in-place refinement could
-    write into (SplatResult.scratch) go in as non-scratch views, so the measuring run
-    cannot change what the pipeline goes on with."""
-    return {k: (v.replace(scratch=False) if getattr(v, "scratch", False) is True else v)
+    write into (SplatResult.scratch, tensors marked scratch: fgcli.ops._util) go in as
+    non-scratch views, so the measuring run cannot change what the pipeline goes on with."""
+    from fgcli.ops._util import unmarked
+
+    return {k: (v.replace(scratch=False) if getattr(v, "scratch", False) is True
+                else unmarked(v))
             for k, v in ctx.items()}
 
 

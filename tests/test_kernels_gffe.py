@@ -735,3 +735,69 @@ def test_splat_min_with_want_matches_the_full_splat_at_want_cells(h, w, sc):
         assert torch.equal(dep.reshape(th, tw)[m], full_dep.reshape(th, tw)[m])
         assert (src.reshape(th, tw)[~m] == -1).all()
         assert torch.isinf(dep.reshape(th, tw)[~m]).all()
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (9, 14), (33, 51), (15, 200), (70, 90)])
+def test_hole_fills_in_place_write_scratch_only(h, w):
+    """The hole stages' ops with in_place=True (vector_rule_fill, background_fill,
+    fill_holes, push_pull_fill's tile path): where the colour, depth and vectors are marked
+    scratch (fgcli.ops._util.mark_scratch) the filled holes are written into them (the
+    results are those tensors) with the same bits as without in_place, and the reference's
+    values; unmarked inputs, or in_place=False, are never changed. Colours with NaN / inf
+    at valid pixels (the push-pull sanitises them after its tiles read them), sparse holes
+    (the tile path) and dense ones (the frame's pyramid: copies)."""
+    from fgcli.ops._util import is_scratch, mark_scratch, unmarked
+
+    f = _hard_frames(h, w, h * 100 + w + 3)
+    traj, dyn = G.track_history(f["d1"], f["mv1"], f["cam1"], f["cam0"], f["d0"], k=3)
+    wp = G.warp_positions(f["c1"], G.estimate_positions(traj, 0.5), f["cam_x"])
+    sparse = torch.ones(1, h, w, dtype=torch.bool)
+    sparse[0, ::3, ::29] = False
+    prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"])
+    layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"])
+    frames = [(wp["color"], wp["depth"], wp["mv"], wp["valid"]),
+              (f["ch"], f["dh"], f["mh"], ~f["holes"]),
+              (f["ch"], f["d1"], f["mh"], sparse)]
+    took_path = set()
+    for i, (c, d, m, v) in enumerate(frames):
+        calls = {
+            "vector_rule_fill": (lambda c, d, m: (c, v, d, m, f["ch"], f["dh"], f["mh"], 1.5),
+                                 same_tree, 3),
+            "background_fill": (lambda c, d, m: (c, d, m, v, layers, f["cam1"], f["cam_x"],
+                                                 "bilinear", f["ch"], f["dh"], f["mh"], 0.5,
+                                                 True, True), same_tree, 3),
+            "fill_holes": (lambda c, d, m: (c, d, m, v, 0.1, "reproject", "clamp", True,
+                                            f["ch"], f["dh"], f["cam1"], f["cam_x"], None),
+                           close_tree, 3),
+            "push_pull_fill": (lambda c, d, m: (c, v, d, 0.1), close_tree, 2)}
+        for name, (args, cmp, n) in calls.items():
+            base = getattr(K, name)(*args(*[x.clone() for x in (c, d, m)]))
+            cmp(f"{name} {h}x{w} {i} reference", base, getattr(G, name)(*args(c, d, m)))
+            for marked in (True, False):
+                for inp in (True, False):
+                    planes = [x.clone() for x in (c, d, m)]
+                    if marked:
+                        mark_scratch(*planes)
+                    keep = [x.clone() for x in planes]
+                    out = getattr(K, name)(*args(*planes), in_place=inp)
+                    tag = f"{name} {h}x{w} {i} marked={marked} in_place={inp}"
+                    same_tree(tag, out, base)
+                    same = [a is b for a, b in zip(out[:n], planes)]
+                    if any(same):
+                        assert marked and inp and all(same), tag
+                        took_path.add(name)
+                    else:
+                        for a, b in zip(planes, keep):
+                            bits_equal(tag, a, b)
+                    if name in ("vector_rule_fill", "background_fill"):  # (results: scratch)
+                        assert all(is_scratch(x) for x in out[:n]), tag
+                    # an unmarked alias (the pipeline's measuring runs) is left alone
+                    if marked and inp:
+                        planes = mark_scratch(*[x.clone() for x in (c, d, m)])
+                        keep = [x.clone() for x in planes]
+                        getattr(K, name)(*args(*[unmarked(x) for x in planes]), in_place=True)
+                        for a, b in zip(planes, keep):
+                            bits_equal(tag, a, b)
+    if h * w > 1:  # the in-place path was taken, by every op (sparse holes: the tile path)
+        assert took_path == {"vector_rule_fill", "background_fill", "fill_holes",
+                             "push_pull_fill"} or max(h, w) <= 32, took_path

@@ -248,3 +248,18 @@ def test_gap_fill_is_not_skipped_when_cracks_remain_without_holes():
     need, _ = stage.needed(ctx, {"any_motion": True, "history_motion": False})
     out = stage.run(ctx)["motion"] if need else stage.skip(ctx)["motion"]
     assert torch.equal(out.to1, gap_fill(r).to1)  # ... so the stage runs
+
+
+def test_measuring_runs_of_skipped_stages_get_no_scratch():
+    """measure_skips runs a skipped stage on a borrowed context: tensors marked scratch
+    (which an op called with in_place=True may write into) go in as unmarked aliases of
+    the same storage, so the measuring run cannot change the frame's planes."""
+    import torch
+
+    from fgcli.ops._util import is_scratch, mark_scratch
+    from fgcli.pipeline import _borrowed
+
+    t, u = mark_scratch(torch.zeros(3, 4, 5)), torch.ones(2)
+    b = _borrowed({"color": t, "mv": u, "alpha": 0.5})
+    assert is_scratch(t) and not is_scratch(b["color"])
+    assert b["color"].data_ptr() == t.data_ptr() and b["mv"] is u and b["alpha"] == 0.5

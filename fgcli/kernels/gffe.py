@@ -375,7 +375,6 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
     background_fill) it is the same there, and the scatter skips the rest; buf is then
     neither set nor read at the other cells (a 1080p frame's few holes: ~2 ms less)."""
     hs, ws = dn.shape
-    n = h * w
     hm1 = F32(h - 1)
     wm1 = F32(w - 1)
     wf = F32(w)
@@ -547,8 +546,10 @@ def _entering_px(mv1, depth1, depth1f, a, behind, entering, x, y, yh, wf, hf, wm
 
 @njit(**INLINE)
 def _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, mv, valid,
-                color1, depth1, tk, out_c, out_d, out_m, out_v, code, x, y, yy, yh, w, w2):
-    """bg_fill_kernel at (x, y), tk: _entering_px's value there."""
+                color1, depth1, tk, out_c, out_d, out_m, out_v, code, x, y, yy, yh, w, w2,
+                inplace):
+    """bg_fill_kernel at (x, y), tk: _entering_px's value there. inplace: out_c, out_d,
+    out_m are color, depth, mv themselves (never read here then), written where filled."""
     xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
     xh = F32(x) + HALF
     sa = s0[y, x]
@@ -569,18 +570,27 @@ def _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, 
     dsel = db if t1 else da
     dq = _nan_inf_b(depth1[y, x])
     take = f & (tk != ZERO) & (dq < dsel)
-    for k in range(3):
-        c = col1[k, by, bx] if t1 else col0[k, ay, ax]
-        c = c if f else color[k, y, x]
-        out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
-    dd = dsel if f else depth[y, x]
-    out_d[y, x] = dq if take else dd
     mx = (((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)) - xh
     my = (((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)) - yh
-    mx = mx if f else mv[0, y, x]
-    my = my if f else mv[1, y, x]
-    out_m[0, y, x] = ZERO if take else mx
-    out_m[1, y, x] = ZERO if take else my
+    if inplace:  # the filled pixels only
+        if f:
+            for k in range(3):
+                c = col1[k, by, bx] if t1 else col0[k, ay, ax]
+                out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
+            out_d[y, x] = dq if take else dsel
+            out_m[0, y, x] = ZERO if take else mx
+            out_m[1, y, x] = ZERO if take else my
+    else:
+        for k in range(3):
+            c = col1[k, by, bx] if t1 else col0[k, ay, ax]
+            c = c if f else color[k, y, x]
+            out_c[k, y, x] = sval_b(color1[k, y, x]) if take else c
+        dd = dsel if f else depth[y, x]
+        out_d[y, x] = dq if take else dd
+        mx = mx if f else mv[0, y, x]
+        my = my if f else mv[1, y, x]
+        out_m[0, y, x] = ZERO if take else mx
+        out_m[1, y, x] = ZERO if take else my
     out_v[y, x] = np.uint8(1) if (f | (valid[y, x] != U0)) else U0
     rd = f & (not take)
     c0 = np.uint8(1) if (rd & t0 & bil0) else U0
@@ -590,7 +600,7 @@ def _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, 
 @njit(**KERNEL)
 def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, mv,
                    valid, color1, depth1, mv1, a, entering, behind, out_c, out_d, out_m,
-                   out_v, code):
+                   out_v, code, inplace):
     """background_fill after the two splats (bg_resolve_kernel's choice between the
     layers on the holes ~valid), entering_surface's test (with ``entering``; its ``behind``
     case with ``behind``: frame 1's depth read at the pixel containing q + a * mv1(q)) and
@@ -599,7 +609,8 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
 
     Only holes change: a run of SPAN pixels without one passes colour, depth and vectors
     through (valid, code 0) and reads neither the splats nor frame 1, which is also why
-    background_fill splats the cells its holes read only."""
+    background_fill splats the cells its holes read only. inplace: out_c, out_d, out_m
+    are color, depth, mv (scratch of the caller's), written at the filled holes only."""
     h, w = s0.shape
     w2 = s1.shape[1]
     wf = F32(w)
@@ -621,13 +632,16 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
             if m == U0:
                 for i in range(n):
                     x = xa + i
-                    for k in range(3):
-                        out_c[k, y, x] = color[k, y, x]
-                    out_d[y, x] = depth[y, x]
-                    out_m[0, y, x] = mv[0, y, x]
-                    out_m[1, y, x] = mv[1, y, x]
                     out_v[y, x] = np.uint8(1)
                     code[y, x] = U0
+                if not inplace:
+                    for i in range(n):
+                        x = xa + i
+                        for k in range(3):
+                            out_c[k, y, x] = color[k, y, x]
+                        out_d[y, x] = depth[y, x]
+                        out_m[0, y, x] = mv[0, y, x]
+                        out_m[1, y, x] = mv[1, y, x]
                 continue
             # entering_surface's test (its own gather loop)
             for i in range(n):
@@ -636,7 +650,7 @@ def bg_fill_kernel(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, dept
             for i in range(n):
                 _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth,
                             mv, valid, color1, depth1, tk[i], out_c, out_d, out_m, out_v,
-                            code, xa + i, y, yy, yh, w, w2)
+                            code, xa + i, y, yy, yh, w, w2, inplace)
 
 
 @njit(**KERNEL)
@@ -924,14 +938,19 @@ def pp_tile_scan_kernel(depth, valid, K, holes, ok):
 
 
 @njit(**KERNEL)
-def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d):
+def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d, inplace):
     """push_pull_fill's result when every tile with a hole is ok (pp_tile_scan_kernel):
     valid pixels keep their (sanitised) colour and raw depth (pp_final_kernel); in each
     tile with holes, levels 1..K of the tile by pp_down_kernel's arithmetic (the same
     2x2 blocks: tiles are aligned, and their rows / columns at the frame's last edge are
     the frame's), then each hole takes the (sanitised) colour of its first level with
     colour weight and the depth of its first level with depth weight, as the up pass
-    hands them down."""
+    hands them down.
+
+    inplace: out_c, out_d are color, depth themselves (the caller's scratch): a band's
+    tiles first read their pixels and write their holes, then the band's colour rows are
+    sanitised where they hold a value that is not finite (a row that does not is only
+    read); valid depths stay as they are."""
     h, w = depth.shape
     nty, ntx = holes.shape
     T = np.int64(1) << K
@@ -940,12 +959,13 @@ def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d):
         ty = np.int64(pty)
         y0 = ty * T
         y1 = min(h, y0 + T)
-        for y in range(y0, y1):
-            for k in range(3):
+        if not inplace:
+            for y in range(y0, y1):
+                for k in range(3):
+                    for x in range(w):
+                        out_c[k, y, x] = sval_b(color[k, y, x])
                 for x in range(w):
-                    out_c[k, y, x] = sval_b(color[k, y, x])
-            for x in range(w):
-                out_d[y, x] = depth[y, x]
+                    out_d[y, x] = depth[y, x]
         c0 = np.empty((3, T, T), dtype=np.float32)
         d0 = np.empty((T, T), dtype=np.float32)
         w0 = np.empty((T, T), dtype=np.float32)
@@ -1018,6 +1038,16 @@ def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d):
                             dd = ld[lv, cy, cx]
                             break
                     out_d[y0 + y, x0 + x] = dd
+        if inplace:  # (after the band's tiles have read it)
+            for y in range(y0, y1):
+                for k in range(3):
+                    r = out_c[k, y]
+                    e = np.int64(0)  # the largest exponent field: all ones for inf / NaN
+                    for x in range(w):
+                        e = max(e, np.int64(np.float32(r[x]).view(np.int32) & 0x7F800000))
+                    if e == 0x7F800000:
+                        for x in range(w):
+                            r[x] = sval_b(r[x])
 
 
 # ----------------------------------------------------------------------------- hole fills
@@ -1063,12 +1093,14 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
 
 @njit(**KERNEL)
 def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took, flow,
-                        mv_out, rows, some):
+                        mv_out, rows, some, inplace):
     """reproject_took_kernel, and the hole fill's vectors: flow where took, else mv0 on
     the valid pixels, else 0. (The proxy test is written out in both kernels: as a shared
     inlined per-pixel helper the hole-fill stage measured 98 against 57 ms at 1080p.)
     With ``some``, rows y with rows[y] == 0 have no hole: nothing is taken there, and
-    px, py, ok are not read (reproject_kernel left them unwritten)."""
+    px, py, ok are not read (reproject_kernel left them unwritten). inplace (with
+    ``some``): mv_out is mv0 itself, written at the holes only (mv0 never read), and
+    flow only in the rows with a hole (the sampling reads no other)."""
     h, w = depth.shape
     hs, ws = depth1.shape
     wf = F32(w)
@@ -1080,6 +1112,10 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
         y = np.int64(pr)
         yh = F32(y) + HALF
         if some and rows[y] == U0:
+            if inplace:
+                for x in range(w):
+                    took[y, x] = U0
+                continue
             for x in range(w):
                 vv = valid[y, x] != U0
                 took[y, x] = U0
@@ -1112,17 +1148,26 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
             f1 = (sy - yh) if t else ZERO
             flow[0, y, x] = f0
             flow[1, y, x] = f1
-            m0 = mv0[0, y, x] if vv else ZERO
-            m1 = mv0[1, y, x] if vv else ZERO
-            mv_out[0, y, x] = f0 if t else m0
-            mv_out[1, y, x] = f1 if t else m1
+            if inplace:
+                if not vv:
+                    mv_out[0, y, x] = f0
+                    mv_out[1, y, x] = f1
+            else:
+                m0 = mv0[0, y, x] if vv else ZERO
+                m1 = mv0[1, y, x] if vv else ZERO
+                mv_out[0, y, x] = f0 if t else m0
+                mv_out[1, y, x] = f1 if t else m1
 
 
 @njit(**KERNEL)
-def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_out, mv_out):
-    """vector_rule_fill up to the sampling: extrap_hole_fill on the holes (frame 1 read
-    ``a * mv1(q)`` away, the vector where that is not nearer than q by more than 1 - keep),
-    took = holes whose vector is not zero; flow, depth and mv where took."""
+def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
+    """vector_rule_fill up to the sampling, in place: extrap_hole_fill on the holes (frame 1
+    read ``a * mv1(q)`` away, the vector where that is not nearer than q by more than
+    1 - keep), took = holes whose vector is not zero; depth and mv (the caller's own
+    planes: its copies, or scratch) are written where took and nowhere else. flow: the
+    vector where took, 0 at the other pixels of a row with a hole; rows without one are
+    not written (the sampling reads no flow there: it reads only runs of pixels with one
+    taken). A row's holes first (one vectorised test), then its pixels."""
     h, w = depth1.shape
     lo = F32(-0.5)
     hx = F32(w - 0.5)
@@ -1132,6 +1177,15 @@ def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_o
     for pr in prange(h):
         y = np.int64(pr)
         yf = F32(y)
+        vr = valid[y]
+        tr = took[y]
+        m = np.uint8(1)
+        for x in range(w):
+            m &= vr[x]
+        if m != U0:  # no hole in the row
+            for x in range(w):
+                tr[x] = U0
+            continue
         for x in range(w):
             mx = smv_b(mv1[0, y, x]) * a
             my = smv_b(mv1[1, y, x]) * a
@@ -1143,14 +1197,15 @@ def vector_rule_kernel(mv1, depth1, valid, depth, mv, a, keep, took, flow, dep_o
             ds = sdepth_b(depth1[iy, ix])
             do = sdepth_b(depth1[y, x])
             bg = inside & (not (ds < do * keep))
-            hole = valid[y, x] == U0
+            hole = vr[x] == U0
             t = hole & bg & ((mx != ZERO) | (my != ZERO))
-            took[y, x] = np.uint8(1) if t else U0
+            tr[x] = np.uint8(1) if t else U0
             flow[0, y, x] = mx if t else ZERO
             flow[1, y, x] = my if t else ZERO
-            dep_out[y, x] = ds if t else depth[y, x]
-            mv_out[0, y, x] = mx if t else mv[0, y, x]
-            mv_out[1, y, x] = my if t else mv[1, y, x]
+            if t:
+                depth[y, x] = ds
+                mv[0, y, x] = mx
+                mv[1, y, x] = my
 
 
 # ----------------------------------------------------------------------------- history

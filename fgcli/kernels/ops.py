@@ -12,7 +12,7 @@ import torch
 from fgcli import ops as R
 from fgcli.kernels import reference as RF
 from fgcli.ops._util import (ALPHA_MAX, any_set, aux, check_alpha, check_same,
-                             check_tensor)
+                             check_tensor, is_scratch, mark_scratch)
 
 F32 = np.float32
 INF = float("inf")
@@ -39,6 +39,11 @@ def _cpu(*ts) -> bool:
 
 def _empty(*shape, dtype=torch.float32):
     return torch.empty(shape, dtype=dtype)
+
+
+def _own_copy(t: torch.Tensor) -> torch.Tensor:
+    """A C-contiguous copy of t, marked scratch (fgcli.ops._util.mark_scratch)."""
+    return mark_scratch(t.clone(memory_format=torch.contiguous_format))
 
 
 @functools.lru_cache(maxsize=8)
@@ -1451,7 +1456,9 @@ def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True,
     if crack_fill:
         res = gap_fill(res, 0.01, "nearest", in_place=True)  # (res: this call's own scratch)
     col, mv = _sample_where(color1, res.to1, res.valid)
-    return {"color": col, "depth": res.depth, "mv": mv, "valid": res.valid}
+    # (fresh planes, this call's alone: the hole stages may fill them in place)
+    return {"color": mark_scratch(col), "depth": mark_scratch(res.depth),
+            "mv": mark_scratch(mv), "valid": res.valid}
 
 
 def dilate_trajectory(traj, depth1, cam1, dynamic=None, geom=None):
@@ -1667,11 +1674,13 @@ def collect_background(color1, depth1, static, cam1, prev_layers=None, cam_prev=
 
 def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="nearest",
                     color1=None, depth1=None, mv1=None, alpha=0.5, entering=False,
-                    emerging=False, geom=None):
+                    emerging=False, geom=None, in_place=False):
     """fgcli.ops.gffe.background_fill: the layers' geometry (geom kernels) and both
     splats as project_background, then the choice between the layers, the entering
     surface and the stage's selects in one kernel (bg_fill_kernel), the bilinear reads
-    last."""
+    last. in_place: where color, depth and mv are all scratch (fgcli.ops._util), the
+    filled holes are written into them (no copy of the other pixels); the results are
+    scratch either way."""
     H, W = valid.shape[-2:]
     ok = (isinstance(layers, (list, tuple)) and len(layers) == 2
           and _boolcpu(valid, (1, H, W)) and filter in ("nearest", "bilinear")
@@ -1698,7 +1707,10 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
     s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes)
     bil0 = filter == "bilinear"
     bil1 = bil0 and sc == 1.0
-    c, d, m = _empty(3, H, W), _empty(1, H, W), _empty(2, H, W)
+    inp = bool(in_place) and is_scratch(color, depth, mv) and color.is_contiguous() \
+        and depth.is_contiguous() and mv.is_contiguous()
+    c, d, m = (color, depth, mv) if inp else \
+        mark_scratch(_empty(3, H, W), _empty(1, H, W), _empty(2, H, W))
     v = _empty(1, H, W, dtype=torch.bool)
     code = np.empty((H, W), dtype=np.uint8)
     ca, da, ma = _a(color), _a(depth), _a(mv)
@@ -1708,7 +1720,7 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
     bg_fill_kernel(s0.numpy(), d0.numpy(), s1.numpy(), d1.numpy(), sc == 2.0, F32(sc),
                    _a(l0["color"]), _a(l1["color"]), bil0, bil1, ca, da[0], ma,
                    _u8(valid)[0], c1, e1[0], m1, a, ent, bool(emerging), c.numpy(),
-                   d.numpy()[0], m.numpy(), _u8(v)[0], code)
+                   d.numpy()[0], m.numpy(), _u8(v)[0], code, inp)
     if bil0:
         _read_layers_bilinear(code, layers, s0, s1, frags, c)
     return c, d, m, v
@@ -1737,7 +1749,7 @@ def median_depth(depth):
 PP_TILE_K = 5  # push_pull_fill's tiles: 32 x 32 pixels
 
 
-def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K):
+def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_place=False):
     """fgcli.ops.gffe.push_pull_fill (3-channel colour, with depth, far_bias >= 0) by the
     push-pull kernels of fgcli.kernels.gffe, one pass per level and direction; or, when
     every aligned 2**tile_k tile with a hole has a valid pixel and a valid finite depth
@@ -1745,7 +1757,8 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K):
     (pp_tiles_kernel: the same values; 12.4 -> 4.3 ms on the benchmark's blade frame,
     7 holes in 2 of 2,040 tiles). Frames whose holes reach a tile without a valid finite
     depth (a border strip of a moving camera, sky) take the frame's pyramid after the
-    0.3-0.5 ms scan."""
+    0.3-0.5 ms scan. in_place: on the tile path, where color and depth are scratch
+    (fgcli.ops._util), the holes are written into them (the results are they)."""
     ok = (_f32cpu(color) and color.shape[0] == 3 and color.shape[1] * color.shape[2] > 1
           and _f32cpu(depth) and tuple(depth.shape) == (1,) + tuple(color.shape[1:])
           and _boolcpu(valid, depth.shape) and float(far_bias) >= 0)
@@ -1764,9 +1777,11 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K):
         tok = np.empty_like(holes)
         pp_tile_scan_kernel(dep, val, int(tile_k), holes, tok)
         if not np.any(holes & (1 - tok)):
-            out_c, out_d = _empty(3, h, w), _empty(1, h, w)
+            inp = bool(in_place) and is_scratch(color, depth) and color.is_contiguous() \
+                and depth.is_contiguous()
+            out_c, out_d = (color, depth) if inp else (_empty(3, h, w), _empty(1, h, w))
             pp_tiles_kernel(col, dep, val, fb, int(tile_k), holes, out_c.numpy(),
-                            out_d.numpy()[0])
+                            out_d.numpy()[0], inp)
             return out_c, out_d
     xd0, w0, wd0 = (np.empty((h, w), dtype=np.float32) for _ in range(3))
     pp_prep_kernel(dep, val, xd0, w0, wd0)
@@ -1817,10 +1832,12 @@ def reproject_fill(color, valid, depth, color1, depth1, cam1, cam_x, depth_tol=0
 
 def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscreen="clamp",
                border_splat=True, color1=None, depth1=None, cam1=None, cam_x=None,
-               border=None, geom=None):
+               border=None, geom=None, in_place=False):
     """fgcli.ops.gffe.fill_holes: push_pull_fill's kernels, then (no border, mode
     'reproject') the proxy test and the vectors in one kernel (reproject_mv_kernel) and
-    the bilinear read; anything else: the reference's composition of these ops."""
+    the bilinear read; anything else: the reference's composition of these ops.
+    in_place: where color, depth and mv are scratch (fgcli.ops._util) and the push-pull
+    takes its tile path, the holes are written into them (no copy of the other pixels)."""
     H, W = color.shape[-2:] if isinstance(color, torch.Tensor) else (0, 0)
     cams = cam1 is not None and cam_x is not None
     ok = (border is None and mode == "reproject" and cams and offscreen in ("clamp", "skip")
@@ -1834,25 +1851,29 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
                             parts=(project_border, push_pull_fill, reproject_fill))
     from fgcli.kernels.gffe import reproject_mv_kernel
 
-    c, d = push_pull_fill(color, valid, depth, far_bias)
+    inp = bool(in_place) and is_scratch(mv) and mv.is_contiguous()
+    c, d = push_pull_fill(color, valid, depth, far_bias, in_place=inp)
+    inp = inp and c is color and d is depth  # (the tile path took them)
     vu = _u8(valid)[0]
     # the proxy points of the rows with holes only (no other pixel reads them)
     rows = (vu.min(axis=1) == 0).view(np.uint8)
     px, py, _, pok = reproject(d, cam_x, cam1, (H, W), rows=rows)
     took = _empty(1, H, W, dtype=torch.bool)
-    flow, out = _empty(2, H, W), _empty(2, H, W)
+    flow, out = _empty(2, H, W), (mv if inp else mark_scratch(_empty(2, H, W)))
     reproject_mv_kernel(px.numpy(), py.numpy(), _u8(pok), vu, _a(d)[0], _a(depth1)[0],
                         offscreen == "clamp", F32(1.0 - 0.05), _a(mv), _u8(took)[0],
-                        flow.numpy(), out.numpy(), rows, True)
+                        flow.numpy(), out.numpy(), rows, True, inp)
     c, _ = _sample_where(color1, flow, took, base=c, flow_out=False, in_place=True)
     holes = torch.tensor(int(vu.size - np.count_nonzero(vu)), dtype=torch.int64)
     return c, d, out, holes
 
 
 def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
-                     depth_threshold_rel=1e-3):
+                     depth_threshold_rel=1e-3, in_place=False):
     """fgcli.ops.gffe.vector_rule_fill: the extrapolation rule on the holes and the
-    bilinear read of frame 1 as kernels."""
+    bilinear read of frame 1 as kernels, which write the holes they fill only: into color,
+    depth and mv themselves with in_place where all three are scratch
+    (fgcli.ops._util.mark_scratch), else into copies (marked scratch)."""
     H, W = color.shape[-2:]
     ok = (_f32cpu(color) and color.shape[0] == 3 and _f32cpu(color1)
           and color1.shape == color.shape and _f32cpu(depth) and _f32cpu(depth1)
@@ -1866,9 +1887,15 @@ def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
     thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
     from fgcli.kernels.gffe import vector_rule_kernel
 
+    inp = bool(in_place) and is_scratch(color, depth, mv) and color.is_contiguous() \
+        and depth.is_contiguous() and mv.is_contiguous()
+    dep, mvo = (depth, mv) if inp else (_own_copy(depth), _own_copy(mv))
     took = _empty(1, H, W, dtype=torch.bool)
-    flow, dep, mvo = _empty(2, H, W), _empty(1, H, W), _empty(2, H, W)
-    vector_rule_kernel(_a(mv1), _a(depth1)[0], _u8(valid)[0], _a(depth)[0], _a(mv), F32(a),
-                       F32(1.0 - thr), _u8(took)[0], flow.numpy(), dep.numpy()[0], mvo.numpy())
-    out, _ = _sample_where(color1, flow, took, base=color, flow_out=False)
+    flow = _empty(2, H, W)
+    vector_rule_kernel(_a(mv1), _a(depth1)[0], _u8(valid)[0], F32(a), F32(1.0 - thr),
+                       _u8(took)[0], flow.numpy(), dep.numpy()[0], mvo.numpy())
+    if inp:
+        out, _ = _sample_where(color1, flow, took, base=color, flow_out=False, in_place=True)
+    else:
+        out = mark_scratch(_sample_where(color1, flow, took, base=color, flow_out=False)[0])
     return out, dep, mvo, took

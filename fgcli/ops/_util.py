@@ -147,6 +147,38 @@ def reads_back(t: torch.Tensor) -> bool:
 FORCE_DENSE = False
 
 
+# ----------------------------------------------------------------------------- scratch
+# A frame's intermediate planes (the warped frame of gffe-extrap, say) pass from stage to
+# stage; each hole stage used to copy all of them to change the few hole pixels. An op
+# that makes fresh planes (no one else holds them) marks them scratch; an op called with
+# in_place=True may then write into its inputs, where every one it would write is marked,
+# instead of copying them (the caller gives its references up). The mark is an attribute
+# of the tensor object: a view or any other tensor made from it is unmarked, and
+# ``unmarked`` gives an alias without the mark (fgcli.pipeline's measuring runs of
+# skipped stages). Inputs read from files are never marked.
+
+SCRATCH_ATTR = "_fgen_scratch"
+
+
+def mark_scratch(*ts):
+    """Mark fresh tensors, which no one else holds yet, as scratch; returns them."""
+    for t in ts:
+        setattr(t, SCRATCH_ATTR, True)
+    return ts[0] if len(ts) == 1 else ts
+
+
+def is_scratch(*ts) -> bool:
+    """Whether every one of ts is a tensor marked scratch (mark_scratch)."""
+    return all(isinstance(t, torch.Tensor) and t.__dict__.get(SCRATCH_ATTR, False) is True
+               for t in ts)
+
+
+def unmarked(t):
+    """t itself, or where it is marked scratch an alias of it (same storage) without the
+    mark, so that an in-place op leaves it alone."""
+    return t.view_as(t) if is_scratch(t) else t
+
+
 def all_set(mask: torch.Tensor) -> bool:
     """bool(mask.all()), read back. On the CPU numpy answers at the first False element;
     torch's reduction reads the whole mask (1.1 ms for a 1080p mask here, against

@@ -822,14 +822,16 @@ def background_fill(color: torch.Tensor, depth: torch.Tensor, mv: torch.Tensor,
                     color1: torch.Tensor | None = None, depth1: torch.Tensor | None = None,
                     mv1: torch.Tensor | None = None, alpha: float = 0.5,
                     entering: bool = False, emerging: bool = False,
-                    geom: Geometry | None = None):
+                    geom: Geometry | None = None, in_place: bool = False):
     """The background projection stage (gffe_bg_project) as one op: the layers seen by
     cam_x fill the holes (~valid) of the warped frame (project_background); with
     ``entering`` (and frame 1's color1, depth1, mv1), entering_surface's nearer surfaces
     (``emerging``: its ``behind`` case too) replace the layers' fragments there.
 
     Returns (color (3, H, W), depth (1, H, W), mv (2, H, W), valid (1, H, W) bool): the
-    inputs with the filled holes replaced, valid | filled."""
+    inputs with the filled holes replaced, valid | filled. in_place: the caller gives its
+    scratch planes up (fgcli.ops._util.mark_scratch); this reference makes new tensors
+    always (the numba op writes into them)."""
     c, d, m, filled = project_background(layers, cam_bg, cam_x, ~valid, filter, geom=geom)
     if entering and mv1 is not None:
         c1, d1, take = entering_surface(filled, d, color1, depth1, mv1, alpha, emerging)
@@ -1001,7 +1003,8 @@ def push_pull_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor
 
 def vector_rule_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tensor,
                      mv: torch.Tensor, color1: torch.Tensor, depth1: torch.Tensor,
-                     mv1: torch.Tensor, alpha: float, depth_threshold_rel: float = 1e-3):
+                     mv1: torch.Tensor, alpha: float, depth_threshold_rel: float = 1e-3,
+                     in_place: bool = False):
     """Holes of the extrapolated frame filled by Mob-FGSR's extrapolation rule
     (fgcli.ops.fill.extrap_hole_fill, shared with mob-fgsr) where it finds background: hole
     q reads frame 1 at ``q + alpha * mv1(q)`` (behind the object that moved away from q)
@@ -1012,7 +1015,8 @@ def vector_rule_fill(color: torch.Tensor, valid: torch.Tensor, depth: torch.Tens
     left to the next fill.
 
     Args: color (3, H, W), valid (1, H, W) bool, depth (1, H, W), mv (2, H, W) of the
-    extrapolated frame; color1, depth1, mv1 frame 1's; alpha the extrapolation distance.
+    extrapolated frame; color1, depth1, mv1 frame 1's; alpha the extrapolation distance;
+    in_place: as background_fill's (new tensors here always).
     Returns (color, depth, mv toward frame 1, took (1, H, W) bool)."""
     from fgcli.ops.fill import extrap_hole_fill
 
@@ -1068,13 +1072,14 @@ def fill_holes(color: torch.Tensor, depth: torch.Tensor, mv: torch.Tensor,
                offscreen: str = "clamp", border_splat: bool = True,
                color1: torch.Tensor | None = None, depth1: torch.Tensor | None = None,
                cam1=None, cam_x=None, border: dict | None = None,
-               geom: Geometry | None = None, parts=None):
+               geom: Geometry | None = None, parts=None, in_place: bool = False):
     """The hole-fill stage (gffe_hole_fill) as one op: the overscan border's fragments
     first (border_splat, with both cameras), the far-biased push-pull, zero vectors in
     its pixels, then (mode 'reproject', with both cameras) reproject_fill.
 
     parts: (project_border, push_pull_fill, reproject_fill) to compose instead of this
-    module's (with geom); the numba backend passes its kernel versions.
+    module's (with geom); the numba backend passes its kernel versions. in_place: as
+    background_fill's (new tensors here always).
 
     Returns (color, depth, mv, holes: the number of pixels the push-pull filled, a 0-dim
     int64 tensor)."""

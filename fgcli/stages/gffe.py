@@ -350,7 +350,10 @@ def _l1_shape(depth, stage) -> tuple:
 
 class _HoleStage(Stage):
     """A stage that fills holes of the warped frame (ctx["valid"] False): nothing to do
-    without holes; skipped, it passes its outputs through."""
+    without holes; skipped, it passes its outputs through. Its op is called with
+    in_place=True: the warped planes (and each hole stage's results) are marked scratch
+    by the op that made them, and the stage gives them up, so the numba ops write the
+    holes they fill into them instead of copying every pixel (fgcli.ops._util)."""
 
     def needed(self, ctx, facts):
         from fgcli.ops._util import all_set, reads_back
@@ -380,7 +383,7 @@ class GffeVectorRule(_HoleStage):
         c, d, m, took = op("vector_rule_fill", ctx)(ctx["color"], ctx["valid"], ctx["depth"],
                                                     ctx["mv"], ctx["color1"], ctx["depth1"],
                                                     ctx["mv1"], ctx["alpha"],
-                                                    self.depth_threshold)
+                                                    self.depth_threshold, in_place=True)
         return {"color": c, "depth": d, "mv": m, "valid": ctx["valid"] | took}
 
 
@@ -415,7 +418,7 @@ class GffeBackgroundProject(_HoleStage):
         c, d, m, v = op("background_fill", ctx)(
             ctx["color"], ctx["depth"], ctx["mv"], ctx["valid"], ctx["bg"], ctx["camera1"],
             ctx["camera_x"], self.filter, ctx.get("color1"), ctx.get("depth1"),
-            ctx.get("mv1"), ctx["alpha"], ent, self.emerging)
+            ctx.get("mv1"), ctx["alpha"], ent, self.emerging, in_place=True)
         return {"color": c, "depth": d, "mv": m, "valid": v}
 
 
@@ -456,9 +459,10 @@ class GffeHoleFill(Stage):
         return {"color": ctx["color"], "depth": ctx["depth"], "mv": ctx["mv"], "holes": 0}
 
     def run(self, ctx):
-        # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int()
+        # the count stays a tensor (no read-back on a GPU); fgen eval reads it with int();
+        # in_place: as the hole stages' (_HoleStage)
         c, d, mv, holes = op("fill_holes", ctx)(
             ctx["color"], ctx["depth"], ctx["mv"], ctx["valid"], self.far_bias, self.mode,
             self.offscreen, self.border_splat, ctx.get("color1"), ctx.get("depth1"),
-            ctx.get("camera1"), ctx.get("camera_x"), ctx.get("window_border"))
+            ctx.get("camera1"), ctx.get("camera_x"), ctx.get("window_border"), in_place=True)
         return {"color": c, "depth": d, "mv": mv, "holes": holes}
