@@ -794,6 +794,36 @@ def _kfield(*args):
     return f.to(torch.int64)
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1), (16, 9)])
+def test_fsr3_block_vector_field(h, w):
+    """The optical flow's field from vectors and priorities per 8 x 8 block (block=8: the
+    entries kernel reads each pixel's block, frames not a multiple of 8 included): the
+    reference's field of the upsampled vectors and priorities, exactly; other block sizes
+    and the secondary walk (upsampled first) too."""
+    from fgcli.ops import fsr3
+
+    c0, c1, _, _ = _fsr3_inputs(h, w, h * 5 + w)
+    g = torch.Generator().manual_seed(h * 3 + w)
+    for b in (8, 4, 3):
+        nby, nbx = -(-h // b), -(-w // b)
+        f = torch.randn(2, nby, nbx, generator=g) * 6.0
+        f.view(-1)[::7] = torch.round(f.view(-1)[::7])
+        f.view(-1)[::11] = 0.0
+        if f.numel() > 4:
+            f[0].view(-1)[1] = NAN
+            f[1].view(-1)[2] = INF
+            f[0].view(-1)[3] = -1e9
+        hi = fsr3.magnitude_priority(f)
+        up = (fsr3.upsample_block_flow(f, h, w, b), fsr3.upsample_block_flow(hi, h, w, b))
+        for a in (0.5, 0.25):
+            for sec in (False, True):
+                ref = fsr3.vector_field(c0, c1, *up, a, sec)
+                same(f"block field {b} {a} {sec}", _kfield(c0, c1, f, hi, a, sec, 64, 0.05,
+                                                           None, b), ref)
+                same(f"block field (reference) {b} {a} {sec}",
+                     fsr3.vector_field(c0, c1, f, hi, a, sec, block=b), ref)
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_scatters(h, w):
     """FSR 3's footprint scatters (vector field with and without the secondary walk,

@@ -333,7 +333,7 @@ def luma_plane_kernel(c, out):
 
 
 @njit(**KERNEL)
-def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
+def entries_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
     so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps are pair
     loads): frame 0's luminance read bilinearly at
@@ -343,8 +343,14 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
     ``sec``: dist (H, W) = the squared length of (1 - alpha) v (the reference's products
     and sum); the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom)
-    and then walk_steps_kernel the unit steps."""
-    h, w = hi.shape
+    and then walk_steps_kernel the unit steps.
+
+    sh: vec (2, ., .) and hi (., .) hold one value per pixel (0), or per block of
+    2**sh x 2**sh pixels (the optical flow's 8 x 8 blocks: sh = 3), which each of its
+    pixels takes (upsample_block_flow's values, without the frame-sized copies). Either
+    way a row's vectors and priorities are first copied into row buffers."""
+    h = pos.shape[1]
+    w = pos.shape[2]
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
@@ -360,6 +366,21 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
         hi_y = F32(h - 0.5) - yf
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
+        V0 = np.empty(w, dtype=np.float32)
+        V1 = np.empty(w, dtype=np.float32)
+        HR = np.empty(w, dtype=np.int64)
+        if sh == 0:
+            for x in range(w):
+                V0[x] = vec[0, y, x]
+                V1[x] = vec[1, y, x]
+                HR[x] = hi[y, x]
+        else:
+            yb = y >> sh
+            for x in range(w):
+                xb = np.int64(x) >> sh
+                V0[x] = vec[0, yb, xb]
+                V1[x] = vec[1, yb, xb]
+                HR[x] = hi[yb, xb]
         if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
             XA = np.empty(w, dtype=np.int32)
             XB = np.empty(w, dtype=np.int32)
@@ -368,8 +389,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
             Z = np.empty(w, dtype=np.int32)
             WT = np.empty((4, w), dtype=np.float32)
             for x in range(w):
-                vx = smv_b(vec[0, y, x])
-                vy = smv_b(vec[1, y, x])
+                vx = smv_b(V0[x])
+                vy = smv_b(V1[x])
                 xf = F32(x)
                 ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) &
                              (vy >= lo_y) & (vy < hi_y))
@@ -379,8 +400,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
                 bilinear16x1(l0, I32(0), w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b),
                              I32(y * w), s0, I32(0), I32(0))
         for x in range(16 * nb, w):
-            vx = smv_b(vec[0, y, x])
-            vy = smv_b(vec[1, y, x])
+            vx = smv_b(V0[x])
+            vy = smv_b(V1[x])
             xf = F32(x)
             ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
                          & (vy < hi_y))
@@ -391,8 +412,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
             r = _bil_pair(l0, p, rs, xi, nw, ne, sw, se)
             s0[x] = l0[y, x] if zero else r
         for x in range(w):
-            vx = smv_b(vec[0, y, x])
-            vy = smv_b(vec[1, y, x])
+            vx = smv_b(V0[x])
+            vy = smv_b(V1[x])
             a = s0[x]
             b = _lum(c1, y, x)
             a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
@@ -401,7 +422,7 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
             r = F32(1.0) if r != r else r
             lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
             lo = lo if ins[x] != F32(0.0) else np.int64(0)
-            hv = hi[y, x]
+            hv = HR[x]
             hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
             prio = (hv << 5) | lo | 32768
             keys[0, y, x] = _pack(prio, vx)
@@ -410,8 +431,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
             pos[1, y, x] = yf + vy * a1
         if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
             for x in range(w):
-                t0 = smv_b(vec[0, y, x]) * a1
-                t1 = smv_b(vec[1, y, x]) * a1
+                t0 = smv_b(V0[x]) * a1
+                t1 = smv_b(V1[x]) * a1
                 dist[y, x] = t0 * t0 + t1 * t1
 
 

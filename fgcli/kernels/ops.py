@@ -975,16 +975,24 @@ def depth_priority(depth):
     return hi
 
 
-def _field_entries(color0, color1, vec, hi, alpha, sec=False):
+def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
     """fgcli.ops.fsr3.field_entries by the numba kernel: (pos (2, N), keys [(N,), (N,)]
     uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N),
     longest) numpy arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and
-    vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function."""
+    vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function.
+    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them)."""
     from fgcli.ops import fsr3 as FS
 
     from fgcli.kernels.warp import flat_ok
 
-    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
+    if sh > 0 and (sec or not flat_ok(*color1.shape[-2:], 1)):  # (per pixel then)
+        h, w = color1.shape[-2:]
+        vec = FS.upsample_block_flow(vec, h, w, 1 << sh)
+        hi = FS.upsample_block_flow(hi, h, w, 1 << sh)
+        sh = 0
+    if sh > 0:
+        color0, color1, _, a = FS.entries_args(color0, color1, color1[:2], alpha)
+    elif color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
             not flat_ok(*vec.shape[-2:], 1):
         vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
         keys = [_a(k).astype(np.uint32) for k in keys]  # (entries are below 2**32)
@@ -993,18 +1001,20 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False):
             dt = FS._length(vf * (1.0 - a))
             walk = (_a(dt), _a(vf / dt.clamp(min=1e-6)), float(dt.max()))
         return pos, keys, (h, w, a), walk
-    color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
+    else:
+        color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
     from fgcli.kernels.field import entries_kernel, luma_plane_kernel
 
-    h, w = vec.shape[-2:]
+    h, w = color1.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
     pos, keys = _empty(2, h, w), np.empty((2, h, w), dtype=np.uint32)
     l0 = np.empty((h, w), dtype=np.float32)
     luma_plane_kernel(_a(color0), l0)
     dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
     va = _a(vec)
-    entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn,
-                   gyn, kx, ky, pos.numpy(), keys, bool(sec), dist)
+    ha = _a(hi).reshape(hi.shape[-2:] if sh else (h, w))
+    entries_kernel(l0, _a(color1), va, ha, sh, F32(1.0 - a), gxn, gyn, kx, ky, pos.numpy(),
+                   keys, bool(sec), dist)
     walk = None
     if sec and h * w:
         from fgcli.kernels.field import walk_steps_kernel
@@ -1052,21 +1062,36 @@ def _padded_base(field):
 
 
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
-                 tap_threshold=0.05, length_bound=None):
+                 tap_threshold=0.05, length_bound=None, block=1):
     """fgcli.ops.fsr3.vector_field: the entries (and the secondary walk's lengths and
     steps) by one numba kernel, the scatter (primary footprints and the secondary walk) by
     another. The field is uint32 (2, H, W), the reference's entries (all below 2**32) in
-    half the bytes; unpack_vector_field reads either."""
+    half the bytes; unpack_vector_field reads either. block (a power of two): the entries
+    kernel reads each pixel's block's vector and priority itself (the upsampled copies,
+    (2, H, W) float32 and (1, H, W) int64, cost ~3 ms per 1080p frame)."""
     from fgcli.ops import fsr3 as FS
 
+    sh = 0
+    if block != 1:
+        h, w = color1.shape[-2:] if isinstance(color1, torch.Tensor) else (0, 0)
+        b = block if isinstance(block, int) and not isinstance(block, bool) else 0
+        grid = (-(-h // b), -(-w // b)) if b > 0 else None
+        if (b > 1 and b & (b - 1) == 0 and _cpu(color0, color1, vec, hi)
+                and color0.shape[0] == 3 and tuple(color0.shape) == tuple(color1.shape)
+                and vec.dtype == torch.float32 and tuple(vec.shape) == (2,) + grid
+                and hi.dtype == torch.int64 and tuple(hi.shape) == (1,) + grid):
+            sh = b.bit_length() - 1
+        else:
+            vec = FS.upsample_block_flow(vec, h, w, block)
+            hi = FS.upsample_block_flow(hi, h, w, block)
     if not _cpu(color0, color1, vec, hi) or \
-            (vec.shape[-2] + 2) * (vec.shape[-1] + 2) >= 2 ** 31:  # (int32 texel indices)
+            (color1.shape[-2] + 2) * (color1.shape[-1] + 2) >= 2 ** 31:  # (int32 indices)
         return FS.vector_field(color0, color1, vec, hi, alpha, secondary, max_secondary,
                                tap_threshold, length_bound)
     from fgcli.kernels.field import field_scatter_kernel
 
     walk_on = secondary and max_secondary > 0
-    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on)
+    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on, sh)
     n = (h + 2) * (w + 2)
     padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
     buf = [padded[0].reshape(-1), padded[1].reshape(-1)]

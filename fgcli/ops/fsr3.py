@@ -222,7 +222,7 @@ def field_entries(color0, color1, vec, hi, alpha):
 def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
                  hi: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
                  max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD,
-                 length_bound: float | None = None) -> torch.Tensor:
+                 length_bound: float | None = None, block: int = 1) -> torch.Tensor:
     """FSR 3 vector field of the interpolated frame (GameMotionVectorField pass; with
     optical-flow vectors and magnitude priority, the OpticalFlowVectorField pass).
 
@@ -241,10 +241,16 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
         length_bound: an upper bound of |vec| in px known on the host (the GPU path walks
             that many secondary steps instead of reading the longest vector back; None:
             max_secondary steps there). Never changes the result.
+        block: vec and hi given per block of block x block pixels ((2, ceil(H / block),
+            ceil(W / block)) and (1, ...): the optical flow's), each pixel taking its
+            block's (upsample_block_flow).
 
     Returns:
         (2, H, W) int64 packed entries (x, y); 0 = not written.
     """
+    if block != 1:
+        h, w = color1.shape[-2:]
+        vec, hi = upsample_block_flow(vec, h, w, block), upsample_block_flow(hi, h, w, block)
     vf, pos, hi, lo, keys, (h, w, a) = field_entries(color0, color1, vec, hi, alpha)
     dev = vf.device
     buf = torch.zeros(2, (h + 2) * (w + 2), dtype=torch.int64, device=dev)

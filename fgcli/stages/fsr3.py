@@ -136,8 +136,7 @@ class FSR3OpticalFlow(Stage):
 
     def run(self, ctx):
         from fgcli.kernels import op
-        from fgcli.ops.fsr3 import (dis_flow, flow_vector_field, magnitude_priority,
-                                    upsample_block_flow)
+        from fgcli.ops.fsr3 import dis_flow, flow_vector_field, magnitude_priority
 
         c0, c1 = ctx["color0"], ctx["color1"]
         h, w = c1.shape[-2:]
@@ -170,9 +169,9 @@ class FSR3OpticalFlow(Stage):
             # backends), sampled per pixel
             field = flow_vector_field(c0, c1, f, ctx["alpha"], 8, smooth=self.smooth)
             return {"of_mv": op("sample_flow_field", ctx)(field, h, w, 8)}
-        if self.flow != "dis":  # per block, then per pixel (element-wise ops: same values)
-            f, hi = upsample_block_flow(f, h, w, 8), upsample_block_flow(hi, h, w, 8)
-        field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False)
+        # per block (each pixel takes its block's vector and priority), or per pixel (dis)
+        field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False,
+                                        block=1 if self.flow == "dis" else 8)
         return {"of_mv": op("fill_packed_field", ctx)(field)[0]}
 
 
