@@ -332,8 +332,82 @@ def luma_plane_kernel(c, out):
             out[y, x] = sval_b(_lum(c, y, x))
 
 
+@njit(**INLINE)
+def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
+    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (row
+    arrays: the frame's rows, or a block grid's row buffers)."""
+    h = pos.shape[1]
+    w = pos.shape[2]
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    nb = w // 16 if WINDOW16 else 0  # pixels 0 .. 16 nb - 1 of a row: window fetches
+    yf = F32(y)
+    gyy = gyn[y]
+    lo_y = F32(-0.5) - yf
+    hi_y = F32(h - 0.5) - yf
+    s0 = np.empty(w, dtype=np.float32)
+    ins = np.empty(w, dtype=np.float32)
+    if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
+        for x in range(w):
+            vx = smv_b(V0[x])
+            vy = smv_b(V1[x])
+            xf = F32(x)
+            ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) &
+                         (vy >= lo_y) & (vy < hi_y))
+            bil_taps(vx, vy, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                     YA, YB, WT, Z)
+        for b in range(nb):
+            bilinear16x1(l0, I32(0), w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b),
+                         I32(y * w), s0, I32(0), I32(0))
+    for x in range(16 * nb, w):
+        vx = smv_b(V0[x])
+        vy = smv_b(V1[x])
+        xf = F32(x)
+        ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
+                     & (vy < hi_y))
+        zero = (vx == F32(0.0)) & (vy == F32(0.0))
+        # (pair loads: l0 is sanitised, so _bil_pair's sanitising changes nothing)
+        p, rs, xi, nw, ne, sw, se = _flat_coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                                 hm1, w32, h32)
+        r = _bil_pair(l0, p, rs, xi, nw, ne, sw, se)
+        s0[x] = l0[y, x] if zero else r
+    for x in range(w):
+        vx = smv_b(V0[x])
+        vy = smv_b(V1[x])
+        a = s0[x]
+        b = _lum(c1, y, x)
+        a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
+        b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
+        r = (a if a < b else b) / (b if a < b else a)
+        r = F32(1.0) if r != r else r
+        lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
+        lo = lo if ins[x] != F32(0.0) else np.int64(0)
+        hv = HR[x]
+        hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
+        prio = (hv << 5) | lo | 32768
+        keys[0, y, x] = _pack(prio, vx)
+        keys[1, y, x] = _pack(prio, vy)
+        pos[0, y, x] = F32(x) + vx * a1
+        pos[1, y, x] = yf + vy * a1
+    if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
+        for x in range(w):
+            t0 = smv_b(V0[x]) * a1
+            t1 = smv_b(V1[x]) * a1
+            dist[y, x] = t0 * t0 + t1 * t1
+
+
 @njit(**KERNEL)
-def entries_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
+def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
     so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps are pair
     loads): frame 0's luminance read bilinearly at
@@ -345,95 +419,35 @@ def entries_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, sec, di
     and sum); the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom)
     and then walk_steps_kernel the unit steps.
 
-    sh: vec (2, ., .) and hi (., .) hold one value per pixel (0), or per block of
-    2**sh x 2**sh pixels (the optical flow's 8 x 8 blocks: sh = 3), which each of its
-    pixels takes (upsample_block_flow's values, without the frame-sized copies). Either
-    way a row's vectors and priorities are first copied into row buffers."""
+    The rows' work is _entries_row's; entries_block_kernel feeds it vectors and
+    priorities per block."""
     h = pos.shape[1]
-    w = pos.shape[2]
-    hw = F32(w * 0.5)
-    hh = F32(h * 0.5)
-    wm1 = F32(w - 1)
-    hm1 = F32(h - 1)
-    w32 = I32(w)
-    h32 = I32(h)
-    nb = w // 16 if WINDOW16 else 0  # pixels 0 .. 16 nb - 1 of a row: window fetches
     for py in prange(h):
         y = np.int64(py)
-        yf = F32(y)
-        gyy = gyn[y]
-        lo_y = F32(-0.5) - yf
-        hi_y = F32(h - 0.5) - yf
-        s0 = np.empty(w, dtype=np.float32)
-        ins = np.empty(w, dtype=np.float32)
+        _entries_row(l0, c1, vec[0, y], vec[1, y], hi[y], y, a1, gxn, gyn, kx, ky, pos, keys,
+                     sec, dist)
+
+
+@njit(**KERNEL)
+def entries_block_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
+    """entries_kernel for vectors vec (2, ., .) and priorities hi (., .) per block of
+    2**sh x 2**sh pixels (the optical flow's 8 x 8 blocks: sh = 3), which each of its
+    pixels takes (upsample_block_flow's values, without the frame-sized copies: a row's
+    into row buffers)."""
+    h = pos.shape[1]
+    w = pos.shape[2]
+    for py in prange(h):
+        y = np.int64(py)
         V0 = np.empty(w, dtype=np.float32)
         V1 = np.empty(w, dtype=np.float32)
         HR = np.empty(w, dtype=np.int64)
-        if sh == 0:
-            for x in range(w):
-                V0[x] = vec[0, y, x]
-                V1[x] = vec[1, y, x]
-                HR[x] = hi[y, x]
-        else:
-            yb = y >> sh
-            for x in range(w):
-                xb = np.int64(x) >> sh
-                V0[x] = vec[0, yb, xb]
-                V1[x] = vec[1, yb, xb]
-                HR[x] = hi[yb, xb]
-        if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
-            XA = np.empty(w, dtype=np.int32)
-            XB = np.empty(w, dtype=np.int32)
-            YA = np.empty(w, dtype=np.int32)
-            YB = np.empty(w, dtype=np.int32)
-            Z = np.empty(w, dtype=np.int32)
-            WT = np.empty((4, w), dtype=np.float32)
-            for x in range(w):
-                vx = smv_b(V0[x])
-                vy = smv_b(V1[x])
-                xf = F32(x)
-                ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) &
-                             (vy >= lo_y) & (vy < hi_y))
-                bil_taps(vx, vy, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for b in range(nb):
-                bilinear16x1(l0, I32(0), w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b),
-                             I32(y * w), s0, I32(0), I32(0))
-        for x in range(16 * nb, w):
-            vx = smv_b(V0[x])
-            vy = smv_b(V1[x])
-            xf = F32(x)
-            ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
-                         & (vy < hi_y))
-            zero = (vx == F32(0.0)) & (vy == F32(0.0))
-            # (pair loads: l0 is sanitised, so _bil_pair's sanitising changes nothing)
-            p, rs, xi, nw, ne, sw, se = _flat_coords(vx, vy, gxn[x], gyy, kx, ky, hw, hh, wm1,
-                                                     hm1, w32, h32)
-            r = _bil_pair(l0, p, rs, xi, nw, ne, sw, se)
-            s0[x] = l0[y, x] if zero else r
+        yb = y >> sh
         for x in range(w):
-            vx = smv_b(V0[x])
-            vy = smv_b(V1[x])
-            a = s0[x]
-            b = _lum(c1, y, x)
-            a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
-            b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
-            r = (a if a < b else b) / (b if a < b else a)
-            r = F32(1.0) if r != r else r
-            lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
-            lo = lo if ins[x] != F32(0.0) else np.int64(0)
-            hv = HR[x]
-            hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
-            prio = (hv << 5) | lo | 32768
-            keys[0, y, x] = _pack(prio, vx)
-            keys[1, y, x] = _pack(prio, vy)
-            pos[0, y, x] = F32(x) + vx * a1
-            pos[1, y, x] = yf + vy * a1
-        if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
-            for x in range(w):
-                t0 = smv_b(V0[x]) * a1
-                t1 = smv_b(V1[x]) * a1
-                dist[y, x] = t0 * t0 + t1 * t1
+            xb = np.int64(x) >> sh
+            V0[x] = vec[0, yb, xb]
+            V1[x] = vec[1, yb, xb]
+            HR[x] = hi[yb, xb]
+        _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist)
 
 
 @njit(**KERNEL)

@@ -685,6 +685,9 @@ _GROUPS = (
      ("fsr3", lambda i: _warm_pyramid_u8()),
      ("fsr3", lambda i: fill_packed_field(vector_field(i["c"], i["c"], i["mv"],
                                                        (i["d"] * 100).to(torch.int64)))),
+     ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"][:, :1, :1].contiguous(),
+                                     torch.ones(1, 1, 1, dtype=torch.int64), 0.5, False,
+                                     block=8)),
      ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
      ("gffe", lambda i: _warm_gffe(i["d"]))),
 )
@@ -757,7 +760,8 @@ def _warm_kernels(families=None) -> tuple:
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,
-                    field.entries_kernel, field.luma_plane_kernel,
+                    field.entries_kernel, field.entries_block_kernel,
+                    field.luma_plane_kernel,
                     field.depth_rank_kernel,
                     field.walk_steps_kernel, field.length_kernel,
                     fsr3.interp_depth_kernel)
@@ -1003,7 +1007,7 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
         return pos, keys, (h, w, a), walk
     else:
         color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
-    from fgcli.kernels.field import entries_kernel, luma_plane_kernel
+    from fgcli.kernels.field import entries_block_kernel, entries_kernel, luma_plane_kernel
 
     h, w = color1.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
@@ -1012,9 +1016,12 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
     luma_plane_kernel(_a(color0), l0)
     dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
     va = _a(vec)
-    ha = _a(hi).reshape(hi.shape[-2:] if sh else (h, w))
-    entries_kernel(l0, _a(color1), va, ha, sh, F32(1.0 - a), gxn, gyn, kx, ky, pos.numpy(),
-                   keys, bool(sec), dist)
+    if sh:
+        entries_block_kernel(l0, _a(color1), va, _a(hi).reshape(hi.shape[-2:]), sh,
+                             F32(1.0 - a), gxn, gyn, kx, ky, pos.numpy(), keys, bool(sec), dist)
+    else:
+        entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn, gyn, kx,
+                       ky, pos.numpy(), keys, bool(sec), dist)
     walk = None
     if sec and h * w:
         from fgcli.kernels.field import walk_steps_kernel
