@@ -801,3 +801,39 @@ def test_hole_fills_in_place_write_scratch_only(h, w):
     if h * w > 1:  # the in-place path was taken, by every op (sparse holes: the tile path)
         assert took_path == {"vector_rule_fill", "background_fill", "fill_holes",
                              "push_pull_fill"} or max(h, w) <= 32, took_path
+
+
+@pytest.mark.parametrize("hs,ws,h,w,sc", [(1, 1, 1, 1, 1.0), (9, 14, 9, 14, 1.0),
+                                          (33, 51, 33, 51, 1.0), (33, 51, 17, 26, 2.0),
+                                          (60, 80, 60, 80, 1.0)])
+def test_sparse_splat_fill_equals_the_dense_pair(hs, ws, h, w, sc):
+    """collect_background's splat + layer fill: the sparse kernel (the used fragments
+    alone, serially) gives the dense pair's layer bit for bit: fragments off screen, NaN /
+    negative / inf depths, many on one cell (the least depth wins, then the lower index),
+    a layer already valid in places (kept), every use density."""
+    g = torch.Generator().manual_seed(hs * 31 + ws + int(sc))
+    px = torch.rand(hs, ws, generator=g) * (w * sc + 4) - 2
+    py = torch.rand(hs, ws, generator=g) * (h * sc + 4) - 2
+    px.view(-1)[::5] = torch.floor(px.view(-1)[::5] / 4) * 4  # clusters on few cells
+    py.view(-1)[::5] = 1.0
+    dn = torch.rand(hs, ws, generator=g) * 10
+    dn.view(-1)[::7] = 5.0  # equal depths: the lower index wins
+    dn.view(-1)[1::11] = NAN
+    dn.view(-1)[2::13] = -1.0
+    dn.view(-1)[4::17] = INF
+    pc = torch.rand(3, hs, ws, generator=g)
+    for dens in (0.0, 0.02, 0.3, 1.0):
+        use = (torch.rand(hs, ws, generator=g) < dens).to(torch.uint8).numpy()
+        outs = []
+        for sparse in (True, False):
+            lay = G.empty_layer(h, w, "cpu")
+            lay["valid"].view(-1)[::9] = True
+            lay["depth"].view(-1)[::9] = 2.5
+            lay["color"][:, ::2] = 0.25
+            K._splat_fill(px, py, sc, dn, use, h, w, pc.numpy(), lay["color"].numpy(),
+                          lay["depth"].numpy()[0], lay["valid"].numpy()[0].view(np.uint8),
+                          sparse=sparse)
+            outs.append(lay)
+        same_tree(f"splat fill {hs}x{ws} -> {h}x{w} {dens}", outs[0], outs[1])
+        if dens >= 0.3 and hs * ws > 1:  # (fragments did fill cells)
+            assert int(outs[0]["valid"].sum()) > len(range(0, h * w, 9))
