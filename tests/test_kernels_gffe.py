@@ -162,6 +162,21 @@ def test_reproject_is_project_of_unproject(h, w):
         full = (2 * h, 2 * w)
         same_tree(f"centres {trial}", K.reproject(d, cam_a, cam_b, full, cx, cy),
                   G.project(G.unproject(d, cam_a, cx, cy, full), cam_b, full))
+        # a layer's fragments: the valid mask inside the kernel (sky, NaN, negative depths
+        # in valid and invalid cells; every row, or the rows marked)
+        valid = torch.rand(1, h, w, generator=g) < 0.6
+        valid[0, 0] = True  # (a sky row)
+        layer = {"depth": d, "valid": valid, "color": torch.zeros(3, h, w)}
+        same_tree(f"layer fragments {trial}",
+                  K._layer_fragments(layer, cam_a, cam_b, full, 2.0),
+                  G._layer_fragments(layer, cam_a, cam_b, full, 2.0))
+        rows = (torch.rand(h, generator=g) < 0.5).to(torch.uint8).numpy()
+        rows[0] = 1
+        k = K.reproject(d, cam_a, cam_b, size, rows=rows, valid=valid)
+        r = G.project(G.unproject(torch.where(valid, d, 0.0), cam_a), cam_b, size)
+        r = r[:3] + (r[3] & valid[0],)
+        sel = torch.from_numpy(rows.astype(bool))
+        same_tree(f"masked rows {trial}", [t[sel] for t in k], [t[sel] for t in r])
 
 
 @pytest.mark.parametrize("h,w", SIZES)

@@ -245,34 +245,51 @@ def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
 
 @njit(**KERNEL)
 def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, ook, ss, nsky,
-                     rows, some):
+                     rows, some, valid, has_valid, dm):
     """project(unproject(depth, samples), camera 2) without the positions in memory: per
     row, unproject_kernel's surface points into row buffers, then project_kernel's loop
     on them (each loop as vectorised as in its own kernel; the positions stay in cache).
     ss, nsky as unproject_kernel's; the sky pixels' outputs are finished by
     reproject_sky_kernel. With ``some``, only the rows y with rows[y] != 0 (uint8 (h,));
     the others get their sky count alone (the sky pass then takes torch.sqrt of the same
-    span of rows, so the rows computed come out the same) and garbage outputs."""
+    span of rows, so the rows computed come out the same) and garbage outputs.
+
+    has_valid: the depth is where(valid, depth, 0) (valid (h, w) uint8; a layer's valid
+    cells) and ook is ok & valid, without that depth plane made first: each row masked
+    into a row buffer, and written to dm (h, w) where the row has sky (the sky pass reads
+    dm then, on those rows only)."""
     h, w = depth.shape
     for y in prange(h):
+        dr = depth[y]
+        vb = np.empty(w, dtype=np.uint8)  # (a row buffer either way: no branch per pixel)
+        if has_valid:
+            for x in range(w):
+                vb[x] = valid[y, x]
+        else:
+            for x in range(w):
+                vb[x] = np.uint8(1)
+        db = np.empty(w, dtype=np.float32)
+        for x in range(w):
+            db[x] = dr[x] if vb[x] != U0 else ZERO
         if some and rows[y] == U0:
-            dr = depth[y]
             n = 0
             for x in range(w):
-                n += np.int64(dr[x] == INF)
+                n += np.int64(db[x] == INF)
             nsky[y] = n
+            if has_valid and n > 0:
+                for x in range(w):
+                    dm[y, x] = db[x]
             continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
         _ndc_row(px, py, y, kx, ky, nxr, nyr)
-        dr = depth[y]
         o0 = np.empty(w, dtype=np.float32)
         o1 = np.empty(w, dtype=np.float32)
         o2 = np.empty(w, dtype=np.float32)
         o3 = np.empty(w, dtype=np.float32)
         sr = ss[y]
         for x in range(w):
-            a, b, c, e, s = _surface_px(nxr[x], nyr[x], dr[x], A, M)
+            a, b, c, e, s = _surface_px(nxr[x], nyr[x], db[x], A, M)
             o0[x] = a
             o1[x] = b
             o2[x] = c
@@ -280,8 +297,11 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
             sr[x] = s
         n = 0
         for x in range(w):
-            n += np.int64(dr[x] == INF)
+            n += np.int64(db[x] == INF)
         nsky[y] = n
+        if has_valid and n > 0:
+            for x in range(w):
+                dm[y, x] = db[x]
         rx = opx[y]
         ry = opy[y]
         rd = od[y]
@@ -291,19 +311,20 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
             rx[x] = qx
             ry[x] = qy
             rd[x] = d
-            ro[x] = o
+            ro[x] = o & (vb[x] != U0)
 
 
 @njit(**KERNEL)
 def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx, opy, od,
-                         ook, rows, some):
+                         ook, rows, some, nsky):
     """reproject_kernel's sky pixels on rows y0 .. y0 + len(nrm) - 1 (nrm: torch.sqrt of
     their squared norms): the direction (unproject_sky_kernel's), projected. With
-    ``some``: the rows reproject_kernel computed only."""
+    ``some``: the rows reproject_kernel computed only. Rows without sky (nsky, its
+    counts) are not read."""
     w = depth.shape[1]
     for r in prange(nrm.shape[0]):
         y = y0 + r
-        if some and rows[y] == U0:
+        if (some and rows[y] == U0) or nsky[y] == 0:
             continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
