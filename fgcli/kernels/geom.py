@@ -119,33 +119,38 @@ def _ndc_row(px, py, y, kx, ky, nxr, nyr):
             nyr[x] = ONE - pyr[x] * ky
 
 
+@njit(**INLINE)
+def _unproject_row(px, py, y, kx, ky, dr, A, M, o0, o1, o2, o3, sr):
+    """unproject_kernel's row y (samples as _ndc_row, depths dr) into the rows o0 .. o3
+    and sr (the squared norms; the frame's rows or row buffers); returns its sky pixels'
+    count (counted in a loop of its own: a reduction in the pixel loop stops it
+    vectorising). Inlined by the kernels that unproject a row (unproject_kernel,
+    reproject_kernel, gffe.hist_p_kernel)."""
+    w = dr.shape[0]
+    nxr = np.empty(w, dtype=np.float32)
+    nyr = np.empty(w, dtype=np.float32)
+    _ndc_row(px, py, y, kx, ky, nxr, nyr)
+    for x in range(w):
+        a, b, c, e, s = _surface_px(nxr[x], nyr[x], dr[x], A, M)
+        o0[x] = a
+        o1[x] = b
+        o2[x] = c
+        o3[x] = e
+        sr[x] = s
+    n = 0
+    for x in range(w):
+        n += np.int64(dr[x] == INF)
+    return n
+
+
 @njit(**KERNEL)
 def unproject_kernel(depth, px, py, kx, ky, A, M, out, ss, nsky):
     """fgcli.ops.gffe.unproject but the sky: depth (h, w), samples as _ndc_row, out
     (4, h, w); ss (h, w) the squared norms, nsky (h,) int64 the sky pixels per row."""
     h, w = depth.shape
     for y in prange(h):
-        nxr = np.empty(w, dtype=np.float32)
-        nyr = np.empty(w, dtype=np.float32)
-        _ndc_row(px, py, y, kx, ky, nxr, nyr)
-        dr = depth[y]
-        o0 = out[0, y]
-        o1 = out[1, y]
-        o2 = out[2, y]
-        o3 = out[3, y]
-        sr = ss[y]
-        for x in range(w):
-            a, b, c, e, s = _surface_px(nxr[x], nyr[x], dr[x], A, M)
-            o0[x] = a
-            o1[x] = b
-            o2[x] = c
-            o3[x] = e
-            sr[x] = s
-        # counted in a loop of its own: a reduction in the pixel loop stops it vectorising
-        n = 0
-        for x in range(w):
-            n += np.int64(dr[x] == INF)
-        nsky[y] = n
+        nsky[y] = _unproject_row(px, py, y, kx, ky, depth[y], A, M, out[0, y], out[1, y],
+                                 out[2, y], out[3, y], ss[y])
 
 
 @njit(**INLINE)
@@ -280,24 +285,11 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
                 for x in range(w):
                     dm[y, x] = db[x]
             continue
-        nxr = np.empty(w, dtype=np.float32)
-        nyr = np.empty(w, dtype=np.float32)
-        _ndc_row(px, py, y, kx, ky, nxr, nyr)
         o0 = np.empty(w, dtype=np.float32)
         o1 = np.empty(w, dtype=np.float32)
         o2 = np.empty(w, dtype=np.float32)
         o3 = np.empty(w, dtype=np.float32)
-        sr = ss[y]
-        for x in range(w):
-            a, b, c, e, s = _surface_px(nxr[x], nyr[x], db[x], A, M)
-            o0[x] = a
-            o1[x] = b
-            o2[x] = c
-            o3[x] = e
-            sr[x] = s
-        n = 0
-        for x in range(w):
-            n += np.int64(db[x] == INF)
+        n = _unproject_row(px, py, y, kx, ky, db, A, M, o0, o1, o2, o3, ss[y])
         nsky[y] = n
         if has_valid and n > 0:
             for x in range(w):

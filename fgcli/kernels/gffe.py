@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
-from fgcli.kernels.geom import _ndc_row, _project_px, _surface_px
+from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
 from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -1237,26 +1237,11 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
     hm1 = F32(h - 1)
     for pr in prange(h):
         y = np.int64(pr)
-        nxr = np.empty(w, dtype=np.float32)
-        nyr = np.empty(w, dtype=np.float32)
-        _ndc_row(gx, gy, y, kx, ky, nxr, nyr)
-        dr = depth[y]
         o0 = p[0, y]
         o1 = p[1, y]
         o2 = p[2, y]
         o3 = p[3, y]
-        sr = ss[y]
-        for x in range(w):
-            a, b, c, e, q = _surface_px(nxr[x], nyr[x], dr[x], A, M)
-            o0[x] = a
-            o1[x] = b
-            o2[x] = c
-            o3[x] = e
-            sr[x] = q
-        n = 0
-        for x in range(w):
-            n += np.int64(dr[x] == INF)
-        nsky[y] = n
+        nsky[y] = _unproject_row(gx, gy, y, kx, ky, depth[y], A, M, o0, o1, o2, o3, ss[y])
         yc = F32(y) + HALF
         for x in range(w):
             qx, qy, _, ok = _project_px(o0[x], o1[x], o2[x], o3[x], V, P, hw, hh)
