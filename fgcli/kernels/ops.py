@@ -41,6 +41,12 @@ def _empty(*shape, dtype=torch.float32):
     return torch.empty(shape, dtype=dtype)
 
 
+def _writable(in_place, *ts) -> bool:
+    """Whether an op asked to work in place may write into ts: every one scratch
+    (fgcli.ops._util.mark_scratch) and C-contiguous (the kernels' layout)."""
+    return bool(in_place) and is_scratch(*ts) and all(t.is_contiguous() for t in ts)
+
+
 def _own_copy(t: torch.Tensor) -> torch.Tensor:
     """A C-contiguous copy of t, marked scratch (fgcli.ops._util.mark_scratch)."""
     return mark_scratch(t.clone(memory_format=torch.contiguous_format))
@@ -1784,8 +1790,7 @@ def background_fill(color, depth, mv, valid, layers, cam_bg, cam_x, filter="near
     s0, d0, s1, d1, frags = _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes)
     bil0 = filter == "bilinear"
     bil1 = bil0 and sc == 1.0
-    inp = bool(in_place) and is_scratch(color, depth, mv) and color.is_contiguous() \
-        and depth.is_contiguous() and mv.is_contiguous()
+    inp = _writable(in_place, color, depth, mv)
     c, d, m = (color, depth, mv) if inp else \
         mark_scratch(_empty(3, H, W), _empty(1, H, W), _empty(2, H, W))
     v = _empty(1, H, W, dtype=torch.bool)
@@ -1854,8 +1859,7 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_
         tok = np.empty_like(holes)
         pp_tile_scan_kernel(dep, val, int(tile_k), holes, tok)
         if not np.any(holes & (1 - tok)):
-            inp = bool(in_place) and is_scratch(color, depth) and color.is_contiguous() \
-                and depth.is_contiguous()
+            inp = _writable(in_place, color, depth)
             out_c, out_d = (color, depth) if inp else (_empty(3, h, w), _empty(1, h, w))
             pp_tiles_kernel(col, dep, val, fb, int(tile_k), holes, out_c.numpy(),
                             out_d.numpy()[0], inp)
@@ -1928,7 +1932,7 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
                             parts=(project_border, push_pull_fill, reproject_fill))
     from fgcli.kernels.gffe import reproject_mv_kernel
 
-    inp = bool(in_place) and is_scratch(mv) and mv.is_contiguous()
+    inp = _writable(in_place, mv)
     c, d = push_pull_fill(color, valid, depth, far_bias, in_place=inp)
     inp = inp and c is color and d is depth  # (the tile path took them)
     vu = _u8(valid)[0]
@@ -1964,8 +1968,7 @@ def vector_rule_fill(color, valid, depth, mv, color1, depth1, mv1, alpha,
     thr = check_alpha(depth_threshold_rel, "depth_threshold_rel", 0.0, 1.0)
     from fgcli.kernels.gffe import vector_rule_kernel
 
-    inp = bool(in_place) and is_scratch(color, depth, mv) and color.is_contiguous() \
-        and depth.is_contiguous() and mv.is_contiguous()
+    inp = _writable(in_place, color, depth, mv)
     dep, mvo = (depth, mv) if inp else (_own_copy(depth), _own_copy(mv))
     took = _empty(1, H, W, dtype=torch.bool)
     flow = _empty(2, H, W)
