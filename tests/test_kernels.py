@@ -925,6 +925,33 @@ def test_fsr3_lengths_take_torchs_sqrt():
              fsr3.vector_field(c0, c1, v, hi, a, True, 64))
 
 
+def test_torch_math_position_free():
+    """What the kernels' callers rely on when they take torch.log / torch.sqrt of a part of
+    what the reference takes them of (the match search's taps, the sky rows): the result
+    for an element does not depend on its position, its neighbours or the tensor's
+    length (vector body or tail; MKL's sqrt and Sleef's log differ from IEEE's / libm's
+    on some inputs, which is why the kernels call torch at all). Values where both
+    differ from numpy's, in every length up to two vector widths and a few large ones,
+    at every offset of a 64-element block, and gathered."""
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    n = 1 << 16
+    x = (rng.standard_normal(n).astype(np.float32) ** 2
+         * rng.choice(np.array([1e-30, 1e-3, 1.0, 1e3, 1e30], dtype=np.float32), n))
+    x = torch.from_numpy(x + np.float32(1e-30))
+    for f in (torch.log, torch.sqrt):
+        full = f(x)  # (x86 builds: 6 % of these logs and 14 % of the roots differ from
+        # numpy's; elsewhere torch's may be IEEE's, and the test holds trivially)
+        for m in list(range(1, 70)) + [255, 1000, 4097, 40000]:
+            for off in range(0, 64, 1 if m < 70 else 13):
+                part = f(x[off:off + m].clone())
+                assert torch.equal(part.view(torch.int32),
+                                   full[off:off + m].view(torch.int32)), (f, m, off)
+        idx = torch.from_numpy(rng.integers(0, n, 777))
+        assert torch.equal(f(x[idx]).view(torch.int32), full[idx].view(torch.int32))
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_masks_and_interpolation(h, w):
     """FSR 3's disocclusion masks and interpolation pass: one kernel pass each, the

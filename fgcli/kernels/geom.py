@@ -256,8 +256,7 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
     on them (each loop as vectorised as in its own kernel; the positions stay in cache).
     ss, nsky as unproject_kernel's; the sky pixels' outputs are finished by
     reproject_sky_kernel. With ``some``, only the rows y with rows[y] != 0 (uint8 (h,));
-    the others get their sky count alone (the sky pass then takes torch.sqrt of the same
-    span of rows, so the rows computed come out the same) and garbage outputs.
+    the others get a sky count of 0 (the sky pass skips them) and garbage outputs.
 
     has_valid: the depth is where(valid, depth, 0) (valid (h, w) uint8; a layer's valid
     cells) and ook is ok & valid, without that depth plane made first: each row masked
@@ -265,6 +264,9 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
     dm then, on those rows only)."""
     h, w = depth.shape
     for y in prange(h):
+        if some and rows[y] == U0:
+            nsky[y] = 0  # (the sky pass skips it)
+            continue
         dr = depth[y]
         vb = np.empty(w, dtype=np.uint8)  # (a row buffer either way: no branch per pixel)
         if has_valid:
@@ -276,15 +278,6 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
         db = np.empty(w, dtype=np.float32)
         for x in range(w):
             db[x] = dr[x] if vb[x] != U0 else ZERO
-        if some and rows[y] == U0:
-            n = 0
-            for x in range(w):
-                n += np.int64(db[x] == INF)
-            nsky[y] = n
-            if has_valid and n > 0:
-                for x in range(w):
-                    dm[y, x] = db[x]
-            continue
         o0 = np.empty(w, dtype=np.float32)
         o1 = np.empty(w, dtype=np.float32)
         o2 = np.empty(w, dtype=np.float32)
@@ -312,7 +305,7 @@ def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx
     """reproject_kernel's sky pixels on rows y0 .. y0 + len(nrm) - 1 (nrm: torch.sqrt of
     their squared norms): the direction (unproject_sky_kernel's), projected. With
     ``some``: the rows reproject_kernel computed only. Rows without sky (nsky, its
-    counts) are not read."""
+    counts; 0 for the rows it skipped) are not read."""
     w = depth.shape[1]
     for r in prange(nrm.shape[0]):
         y = y0 + r

@@ -1283,35 +1283,74 @@ def select_rows_kernel(mask, end, sel):
                 j += 1
 
 
+@njit(**INLINE)
+def _log_arg(v):
+    """torch.nan_to_num(v, nan=0, posinf=1e30).clamp_min(1e-30): the argument of the
+    match search's logarithms (exact: no rounding)."""
+    r = F32(1e30) if v == INF else v
+    r = F32(1e-30) if r != r else r
+    return max(r, F32(1e-30))
+
+
+@njit(**INLINE)
+def _match_tap(ix, iy, t, w, h):
+    """The flat index of _match_idx's tap t (its order: offsets 0, -1, 1 in y, then x)."""
+    r = t // 3
+    c = t - 3 * r
+    oy = r - 1 if r == 2 else -r  # 0, -1, 1
+    ox = c - 1 if c == 2 else -c
+    return min(max(iy + oy, 0), h - 1) * w + min(max(ix + ox, 0), w - 1)
+
+
+@njit(**INLINE)
+def _match_base(xp, yp, w, h, y, x):
+    ix = np.int64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
+    iy = np.int64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
+    return ix, iy
+
+
 @njit(**KERNEL)
-def hist_match_kernel(sel, ld0, ld1, xp, yp, eps, lim, idx, fb):
-    """_match_idx on the selected pixels sel (flat, ascending): of the 3x3 pixels around
-    x', the first whose log depth0 (ld0, flat) is nearer to ld1 (per selected pixel) than
-    the best so far by more than eps (taps in the reference's order); idx updated, fb = no
-    tap within lim."""
+def hist_taps_kernel(sel, depth0, depth1, xp, yp, out):
+    """The arguments of _match_idx's logarithms at the selected pixels sel (flat): out
+    (n, 10) float32, columns 0-8 depth0 at the 3x3 taps around x' (the reference's
+    order), column 9 depth1 at the pixel itself, each through _log_arg. The caller takes
+    torch.log of out in place: the reference's values (its logarithms of the whole
+    frame, read at the taps; torch.log's result for an element does not depend on its
+    position, tests/test_kernels.py::test_torch_math_position_free); 10 logarithms per
+    dynamic pixel instead of the whole frame's."""
+    h, w = xp.shape
+    d0 = depth0.reshape(-1)
+    for i in prange(sel.shape[0]):
+        s = sel[i]
+        y = s // w
+        x = s - y * w
+        ix, iy = _match_base(xp, yp, w, h, y, x)
+        for t in range(9):
+            out[i, t] = _log_arg(d0[_match_tap(ix, iy, t, w, h)])
+        out[i, 9] = _log_arg(depth1[y, x])
+
+
+@njit(**KERNEL)
+def hist_match_kernel(sel, lg, xp, yp, eps, lim, idx, fb):
+    """_match_idx on the selected pixels sel (flat, ascending), lg (n, 10) the logarithms
+    of hist_taps_kernel's arguments: of the 3x3 pixels around x', the first whose log
+    depth0 is nearer to the pixel's log depth1 than the best so far by more than eps
+    (taps in the reference's order); idx updated, fb = no tap within lim."""
     h, w = xp.shape
     n = sel.shape[0]
     for i in prange(n):
         s = sel[i]
         y = s // w
         x = s - y * w
-        ix = np.int64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
-        iy = np.int64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
-        l1 = ld1[i]
+        ix, iy = _match_base(xp, yp, w, h, y, x)
+        l1 = lg[i, 9]
         best = INF
         bj = idx[y, x]
         for t in range(9):
-            r = t // 3
-            c = t - 3 * r
-            oy = r - 1 if r == 2 else -r  # 0, -1, 1
-            ox = c - 1 if c == 2 else -c
-            jy = min(max(iy + oy, 0), h - 1)
-            jx = min(max(ix + ox, 0), w - 1)
-            j = jy * w + jx
-            err = abs(ld0[j] - l1)
-            if err < best - eps:
-                best = err
-                bj = j
+            err = abs(lg[i, t] - l1)
+            better = err < best - eps
+            best = err if better else best
+            bj = _match_tap(ix, iy, t, w, h) if better else bj
         idx[y, x] = bj
         fb[y, x] = np.uint8(1) if best > lim else U0
 

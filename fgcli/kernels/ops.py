@@ -781,8 +781,8 @@ def _warm_kernels(families=None) -> tuple:
                     gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                     gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_p_kernel,
-                    gffe.hist_match_kernel, gffe.hist_sel_kernel, gffe.select_rows_kernel,
-                    gffe.bits_count_kernel,
+                    gffe.hist_match_kernel, gffe.hist_taps_kernel, gffe.hist_sel_kernel,
+                    gffe.select_rows_kernel, gffe.bits_count_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
                     gffe.max3_kernel,
                     gffe.layer_fill_kernel, gffe.dilate_pos_kernel, gffe.dilate_dyn_pos_kernel,
@@ -1219,15 +1219,23 @@ def _geom_ok(depth, size) -> bool:
 
 
 def _sky_rows(nsky, ss):
-    """(y0, torch.sqrt of ss's rows y0 .. y1) for the rows that have sky pixels, or None:
-    the sky directions' norms by the function the reference calls (MKL's sqrt is not
-    IEEE's; fgcli.kernels.geom)."""
+    """(y0, ss's rows y0 .. y1 with torch.sqrt taken of those with sky pixels) for the rows
+    that have sky pixels, or None: the sky directions' norms by the function the reference
+    calls (MKL's sqrt is not IEEE's; fgcli.kernels.geom)."""
     rows = np.flatnonzero(nsky)
     if rows.size == 0:
         return None
     y0, y1 = int(rows[0]), int(rows[-1]) + 1
-    nrm = torch.from_numpy(ss[y0:y1])
-    torch.sqrt(nrm, out=nrm)
+    if rows.size == y1 - y0:
+        nrm = torch.from_numpy(ss[y0:y1])
+        torch.sqrt(nrm, out=nrm)
+    else:  # the sky rows alone (the rows between them are never read; those a rows=
+        # pass skipped hold garbage: NaNs and denormals slow MKL's sqrt down 5x): MKL's
+        # result for an element does not depend on its neighbours or its position
+        # (tests/test_kernels.py::test_torch_sqrt_position_free)
+        sub = torch.from_numpy(ss[rows])
+        torch.sqrt(sub, out=sub)
+        ss[rows] = sub.numpy()
     return y0, ss[y0:y1]
 
 
@@ -1263,8 +1271,7 @@ def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None, valid=
     """project(unproject(depth, cam_from, px, py, size), cam_to, size) by
     geom.reproject_kernel (+ reproject_sky_kernel where there is sky): the same values,
     the positions never written out. rows: an (h,) uint8 array; only the rows it marks
-    are computed (the others' outputs: garbage; the sky pass's torch.sqrt still spans
-    the same rows, so the computed rows are the same). valid: a (1, h, w) bool mask;
+    are computed (the others' outputs: garbage). valid: a (1, h, w) bool mask;
     the result is that of where(valid, depth, 0) with ok & valid (a layer's fragments,
     without that depth plane)."""
     s = _samples(depth, px, py) if _geom_ok(depth, size) else None
@@ -1379,8 +1386,8 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     """fgcli.ops.gffe.track_history with a camera history: P_0's unprojection, its
     projection and the static test in one kernel, then the match search and the previous
     frame's points at the dynamic pixels only (fgcli.kernels.gffe.hist_*); the logarithms
-    of the search by torch.log on the tensors the reference takes them of. Without a
-    history (first frame): the reference (GEOM)."""
+    of the search by torch.log, of the values the search reads only. Without a history
+    (first frame): the reference (GEOM)."""
     h, w = depth1.shape[-2:] if isinstance(depth1, torch.Tensor) else (0, 0)
     ok = (cam0 is not None and (depth0 is not None or prev is not None)
           and _f32cpu(depth1) and depth1.shape[0] == 1 and _f32cpu(mv1)
@@ -1394,7 +1401,7 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
                                first_frame, lookup, match_tol, geom=GEOM)
     from fgcli.kernels.geom import unproject_sky_kernel
     from fgcli.kernels.gffe import (hist_match_kernel, hist_p_kernel, hist_sel_kernel,
-                                    select_rows_kernel)
+                                    hist_taps_kernel, select_rows_kernel)
 
     # P_0 is unprojected straight into the trajectory, tested there (fgcli.kernels.gffe's
     # history notes), then copied into the older planes
@@ -1424,14 +1431,13 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     select_rows_kernel(use, end, sel)
     fb = np.zeros((h, w), dtype=np.uint8)
     if lookup == "match" and depth0 is not None:
-        # (the logarithms: frame 1's at the selected pixels only, each the same element-wise
-        # value as the reference's chain)
-        ld0 = torch.nan_to_num(depth0[0], nan=0.0, posinf=1e30).clamp_min_(1e-30).log_()
-        st = torch.from_numpy(sel)
-        ld1 = torch.nan_to_num(depth1[0].reshape(-1)[st], nan=0.0, posinf=1e30) \
-            .clamp_min_(1e-30).log_()
-        hist_match_kernel(sel, _a(ld0.view(-1)), _a(ld1), xp, yp, F32(1e-7),
-                          F32(np.log1p(match_tol)), idx, fb)
+        # the logarithms the search reads (10 per selected pixel: 9 taps of frame 0, the
+        # pixel of frame 1), by torch.log as the reference's
+        lg = torch.empty(sel.shape[0], 10)
+        hist_taps_kernel(sel, _a(depth0)[0], d1a, xp, yp, lg.numpy())
+        lg.log_()
+        hist_match_kernel(sel, lg.numpy(), xp, yp, F32(1e-7), F32(np.log1p(match_tol)), idx,
+                          fb)
     kx0, ky0, A0, M0 = _unproject_coefs(cam0, (h, w))
     pv = _a(prev) if prev is not None else pa[None]
     hist_sel_kernel(sel, pa, idx, fb, d1a, _a(depth0)[0] if depth0 is not None else d1a,
@@ -1616,14 +1622,30 @@ def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes=None):
     def splat(layer, scale, h, w, want, empty):
         if empty:  # no fragment (layer 1 of a sequence's first frame): nothing to project;
             # the positions are never read (no cell of this layer is ever chosen)
-            return (torch.full((h, w), -1, dtype=torch.int64), torch.full((h, w), np.inf),
-                    torch.empty(h, w), torch.empty(h, w))
+            return _no_fragments(h, w)
         px, py, dn, fok = _layer_fragments(layer, cam_bg, cam_x, (H, W), scale)
         return _splat_min(px, py, scale, dn, fok, h, w, want) + (px, py)
 
     s0, d0, px, py = splat(layers[0], 1.0, H, W, want0, empty[0])
     s1, d1, px1, py1 = splat(layers[1], sc, h2, w2, want1, empty[1])
     return s0, d0, s1, d1, (px, py, px1, py1)
+
+
+_NO_FRAGMENTS: dict = {}
+
+
+def _no_fragments(h, w):
+    """An empty layer's splat (source -1, depth inf) and fragment positions (never read),
+    made once per size and shared: its readers (bg_resolve_kernel, bg_fill_kernel,
+    bg_bilinear_kernel) never write it. Filling it for every frame cost 2.3 ms at 1080p."""
+    r = _NO_FRAGMENTS.get((h, w))
+    if r is None:
+        if len(_NO_FRAGMENTS) >= 4:
+            _NO_FRAGMENTS.clear()
+        r = _NO_FRAGMENTS[(h, w)] = (torch.full((h, w), -1, dtype=torch.int64),
+                                     torch.full((h, w), np.inf), torch.empty(h, w),
+                                     torch.empty(h, w))
+    return r
 
 
 def _layer_fragments(layer, cam_from, cam_to, size, scale):
