@@ -1463,10 +1463,14 @@ def _boolcpu(t, shape) -> bool:
             and tuple(t.shape) == tuple(shape))
 
 
-def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place=False):
+def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place=False,
+                  flow_in_place=False):
     """(where(sel, backward_warp(img, flow, 'bilinear'), base or 0),
     where(sel, flow, fbase or 0) or None without flow_out) for a 3-channel img, by one
-    kernel. in_place: base is the caller's own scratch; it becomes the first result."""
+    kernel. in_place: base is the caller's own scratch; it becomes the first result.
+    flow_in_place (no fbase): flow is the caller's own scratch; it becomes the second
+    result (each row's flow is masked before that row's samples read it: the unselected
+    pixels' samples are not used)."""
     from fgcli.kernels.gffe import sample_where_kernel
     from fgcli.kernels.warp import flat_ok
 
@@ -1485,7 +1489,9 @@ def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place
     gxn, gyn, kx, ky = _grid(h, w)
     inp = in_place and base is not None
     out = base if inp else _empty(3, h, w)
-    fout = _empty(2, h, w) if flow_out else None
+    fout = None
+    if flow_out:
+        fout = flow if flow_in_place and fbase is None else _empty(2, h, w)
     ia, fa = _a(img), _a(flow)
     # without base / fbase / fout, same-shape stand-ins (the kernel's selects read them)
     sample_where_kernel(ia, fa, _u8(sel).reshape(h, w), ia if base is None else _a(base),
@@ -1512,7 +1518,7 @@ def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True,
     res = splat_motion(dn, disp, None, 1.0, model="linear", mode="extrap")
     if crack_fill:
         res = gap_fill(res, 0.01, "nearest", in_place=True)  # (res: this call's own scratch)
-    col, mv = _sample_where(color1, res.to1, res.valid)
+    col, mv = _sample_where(color1, res.to1, res.valid, flow_in_place=True)  # (res: ours)
     # (fresh planes, this call's alone: the hole stages may fill them in place)
     return {"color": mark_scratch(col), "depth": mark_scratch(res.depth),
             "mv": mark_scratch(mv), "valid": res.valid}
