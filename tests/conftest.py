@@ -8,6 +8,7 @@ the internal convention: color (3,H,W), depth (1,H,W), mv (2,H,W) toward t-1, mv
 """
 from __future__ import annotations
 
+import contextlib
 import os
 
 # as fgen itself (fgcli/cli.py, the benchmarks): torch's OpenMP threads must not spin,
@@ -82,7 +83,9 @@ def _numba_kernels_compiled():
     """A fresh checkout has no numba cache: compile every kernel once at the start, split
     between two processes (fgcli.kernels.ops.warm: numba compiles under the GIL, so the
     tests hitting the kernels one by one would compile them on one core, ~4 of a cold
-    suite's minutes on 2 cores). A warm cache costs a file check."""
+    suite's minutes on 2 cores). A warm cache costs a file check. Under pytest-xdist
+    (``-n 2``), one worker compiles while the others wait on a file lock, then find the
+    cache warm (each compiling on its own would do the same work twice over)."""
     try:
         from fgcli.kernels import numba_available
         from fgcli.kernels.ops import _cache_cold, warm
@@ -90,5 +93,31 @@ def _numba_kernels_compiled():
         yield
         return
     if numba_available() and _cache_cold():
-        warm()
+        lock = contextlib.nullcontext()
+        if _os.environ.get("PYTEST_XDIST_WORKER"):
+            lock = _warm_lock()
+        with lock:
+            if _cache_cold():
+                warm()
     yield
+
+
+@contextlib.contextmanager
+def _warm_lock():
+    """An exclusive lock on a file beside the kernels' numba cache (POSIX; elsewhere no
+    lock: each worker compiles what it finds cold)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    import fgcli.kernels
+
+    d = _os.path.join(_os.path.dirname(fgcli.kernels.__file__), "__pycache__")
+    _os.makedirs(d, exist_ok=True)
+    with open(_os.path.join(d, ".fgen-warm.lock"), "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
