@@ -1418,11 +1418,12 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     idx = np.empty((h, w), dtype=np.int64)
     nuse = np.empty(h, dtype=np.int64)
     hist_p_kernel(d1a, gx, gy, kx, ky, A, M, V, P, hw, hh, _a(mv1), F32(threshold * threshold),
-                  pa, ss, nsky, xp, yp, use, idx, nuse)
+                  pa, ss, nsky, xp, yp, use, idx, nuse, traj.numpy()[1:])
     sky = _sky_rows(nsky, ss)
-    if sky is not None:
+    if sky is not None:  # (the rows with sky: copied into the older planes here)
         unproject_sky_kernel(d1a, gx, gy, kx, ky, A, M, sky[1], sky[0], pa)
-    traj[1:] = traj[0]
+        y0, y1 = sky[0], sky[0] + sky[1].shape[0]
+        traj[1:, :, y0:y1] = traj[0:1, :, y0:y1]
     dyn = torch.zeros(1, h, w, dtype=torch.bool)
     end = np.cumsum(nuse)
     if end[-1] == 0:
