@@ -925,6 +925,24 @@ def test_fsr3_lengths_take_torchs_sqrt():
              fsr3.vector_field(c0, c1, v, hi, a, True, 64))
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (5, 9), (1, 1)])
+def test_fsr3_output_vectors(h, w):
+    """The interpolated frame's vectors, sanitize_mv(vec) * scale in one pass: NaN, +-inf
+    and huge components, scales 0, negative, non-representable in float32, and a
+    non-contiguous input (the reference's path)."""
+    from fgcli.ops import fsr3
+
+    _, _, v, _ = _fsr3_inputs(h, w, 3 * h + w)
+    v[0, 0, 0] = -INF
+    v[1, -1, -1] = -1e9
+    for s in (0.5, 0.0, -0.25, 1.0 / 3.0, 0.7000000001):
+        same(f"output_vectors {s}", K.output_vectors(v, s), fsr3.output_vectors(v, s))
+    t = v.transpose(1, 2)
+    same("non-contiguous", K.output_vectors(t, 0.3), fsr3.output_vectors(t, 0.3))
+    with pytest.raises(ValueError):
+        K.output_vectors(v[:1], 0.5)
+
+
 def test_torch_math_position_free():
     """What the kernels' callers rely on when they take torch.log / torch.sqrt of a part of
     what the reference takes them of (the match search's taps, the sky rows): the result

@@ -58,6 +58,7 @@ KERNEL_OPS = {
     "avg_pool2": "fgcli.ops.pyramid",
     "sample_flow_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",
+    "output_vectors": "fgcli.ops.fsr3",
     "scene_change_score_tensor": "fgcli.ops.scene",
 }
 

@@ -534,6 +534,18 @@ def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
 
 
 @njit(**KERNEL)
+def scale_mv_kernel(vec, s, out):
+    """output_vectors: out = sanitize_mv(vec) * s (float32 (2, h, w), s float32 as torch
+    rounds a Python scalar), one pass."""
+    h, w = vec.shape[1], vec.shape[2]
+    for py in prange(h):
+        y = np.int64(py)
+        for c in range(2):
+            for x in range(w):
+                out[c, y, x] = smv_b(vec[c, y, x]) * s
+
+
+@njit(**KERNEL)
 def sample_flow_kernel(vec, ya, yb, wy0, wy1, xa, xb, wx0, wx1, out):
     """sample_flow_field per pixel: the bilinear mean of the unpacked block field vec
     (2, fh, fw) float32 at each pixel, from the per-row / per-column taps and weights of

@@ -504,6 +504,20 @@ def interpolated_depth(depth_t, vec, alpha=0.5, depth0=None, depth1=None):
     return out
 
 
+def output_vectors(vec, scale):
+    """fgcli.ops.fsr3.output_vectors by one kernel pass (the reference reads the vectors
+    twice to test them, then once more to scale them)."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (_f32cpu(vec) and vec.shape[0] == 2):
+        return FS.output_vectors(vec, scale)
+    from fgcli.kernels.fsr3 import scale_mv_kernel
+
+    out = _empty(*vec.shape)
+    scale_mv_kernel(_a(vec), F32(float(scale)), out.numpy())
+    return out
+
+
 def avg_pool2(x):
     """fgcli.ops.pyramid.avg_pool2 (one mip level) by the numba kernel."""
     from fgcli.ops.pyramid import avg_pool2 as ref
@@ -679,7 +693,8 @@ _GROUPS = (
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
      ("fsr3", lambda i: luma8(i["c"])),
      ("fsr3", lambda i: depth_priority(i["d"])),
-     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"]))),
+     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
+     ("fsr3", lambda i: output_vectors(i["mv"], 0.5))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
      ("core", lambda i: fill_extrap_holes(
@@ -770,7 +785,7 @@ def _warm_kernels(families=None) -> tuple:
                     field.luma_plane_kernel,
                     field.depth_rank_kernel,
                     field.walk_steps_kernel, field.length_kernel,
-                    fsr3.interp_depth_kernel)
+                    fsr3.interp_depth_kernel, fsr3.scale_mv_kernel)
     from fgcli.kernels import geom, gffe
 
     if "gffe" in fams:

@@ -920,6 +920,13 @@ def interpolate_fsr3(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tens
     return sanitize_values(out), holes, bias
 
 
+def output_vectors(vec: torch.Tensor, scale: float) -> torch.Tensor:
+    """The generated frame's motion vectors: sanitize_mv(vec) * scale, a new tensor (the
+    interpolation stage's game vectors scaled to the previous output time)."""
+    vec = check_tensor(vec, "vec", 2, allow_batch=False)
+    return sanitize_mv(vec) * float(scale)
+
+
 def interpolated_depth(depth_t: torch.Tensor, vec: torch.Tensor, alpha: float = 0.5,
                        depth0: torch.Tensor | None = None,
                        depth1: torch.Tensor | None = None) -> torch.Tensor:

@@ -232,10 +232,9 @@ class FSR3Interpolate(Stage):
 
     def run(self, ctx):
         from fgcli.kernels import op
-        from fgcli.ops import sanitize_mv
 
         a = ctx["alpha"]
-        v = sanitize_mv(ctx["game_mv"])
+        v = ctx["game_mv"]  # (each op sanitises the vectors it reads)
         color, holes, bias = op("interpolate_fsr3", ctx)(ctx["color0"], ctx["color1"], v,
                                                          ctx["mask_prev"], ctx["mask_cur"], a,
                                                          ctx.get("of_mv"), self.space)
@@ -244,7 +243,7 @@ class FSR3Interpolate(Stage):
                                               ctx.get("depth1"))
         prev = float(ctx.get("prev_time") or 0.0)
         # q + alpha v is where the surface was at time 0; toward the previous output time
-        mv = v * (a - prev) if a > prev else v * a
+        mv = op("output_vectors", ctx)(v, (a - prev) if a > prev else a)
         return {"color": color, "depth": depth, "mv": mv, "fsr3_holes": holes,
                 "fsr3_bias": bias}
 
