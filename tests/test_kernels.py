@@ -824,6 +824,36 @@ def test_fsr3_block_vector_field(h, w):
                      fsr3.vector_field(c0, c1, f, hi, a, sec, block=b), ref)
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (5, 9), (1, 1)])
+def test_fsr3_field_luminance_shared(h, w):
+    """Frame 0's luminance plane computed once for both fields (vector_field's luma0):
+    the kernel's plane is the reference's (HDR, NaN and inf colour, and a colour whose
+    luminance overflows), and a field given it equals the field computing its own, per
+    pixel and per block, on both backends; a plane of the wrong size is refused."""
+    from fgcli.ops import fsr3
+
+    c0, c1, v, d = _fsr3_inputs(h, w, h * 7 + w)
+    c0[:, -1, -1] = 3e38  # (the luminance overflows to inf, then is sanitised)
+    l0 = K.field_luminance(c0)
+    same("field_luminance", l0, fsr3.field_luminance(c0))
+    hi = fsr3.depth_priority(d)
+    for a in (0.5, 0.25):
+        for sec in (False, True):
+            ref = fsr3.vector_field(c0, c1, v, hi, a, sec)
+            same(f"reference with luma0 {a} {sec}",
+                 fsr3.vector_field(c0, c1, v, hi, a, sec, luma0=l0), ref)
+            same(f"kernels with luma0 {a} {sec}",
+                 _kfield(c0, c1, v, hi, a, sec, 64, 0.05, None, 1, l0), ref)
+    nby, nbx = -(-h // 8), -(-w // 8)
+    f = torch.randn(2, nby, nbx, generator=torch.Generator().manual_seed(1)) * 5.0
+    fh = fsr3.magnitude_priority(f)
+    same("block field with luma0", _kfield(c0, c1, f, fh, 0.5, False, 64, 0.05, None, 8, l0),
+         fsr3.vector_field(c0, c1, f, fh, 0.5, False, block=8))
+    for fn in (K.vector_field, fsr3.vector_field):
+        with pytest.raises(ValueError, match="luma0"):
+            fn(c0, c1, v, hi, 0.5, False, luma0=torch.zeros(1, h + 1, w))
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_scatters(h, w):
     """FSR 3's footprint scatters (vector field with and without the secondary walk,

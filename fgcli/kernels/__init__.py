@@ -59,6 +59,7 @@ KERNEL_OPS = {
     "sample_flow_field": "fgcli.ops.fsr3",
     "interpolated_depth": "fgcli.ops.fsr3",
     "output_vectors": "fgcli.ops.fsr3",
+    "field_luminance": "fgcli.ops.fsr3",
     "scene_change_score_tensor": "fgcli.ops.scene",
 }
 

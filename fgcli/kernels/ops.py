@@ -694,7 +694,8 @@ _GROUPS = (
      ("fsr3", lambda i: luma8(i["c"])),
      ("fsr3", lambda i: depth_priority(i["d"])),
      ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
-     ("fsr3", lambda i: output_vectors(i["mv"], 0.5))),
+     ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
+     ("fsr3", lambda i: field_luminance(i["c"]))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
      ("core", lambda i: fill_extrap_holes(
@@ -1001,12 +1002,13 @@ def depth_priority(depth):
     return hi
 
 
-def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
+def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0, luma0=None):
     """fgcli.ops.fsr3.field_entries by the numba kernel: (pos (2, N), keys [(N,), (N,)]
     uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N),
     longest) numpy arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and
     vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function.
-    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them)."""
+    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them).
+    luma0: field_luminance(color0) or None (computed here)."""
     from fgcli.ops import fsr3 as FS
 
     from fgcli.kernels.warp import flat_ok
@@ -1020,7 +1022,8 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
         color0, color1, _, a = FS.entries_args(color0, color1, color1[:2], alpha)
     elif color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
             not flat_ok(*vec.shape[-2:], 1):
-        vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha)
+        vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha,
+                                                          luma0)
         keys = [_a(k).astype(np.uint32) for k in keys]  # (entries are below 2**32)
         walk = None
         if sec and vf.shape[1]:
@@ -1034,8 +1037,13 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0):
     h, w = color1.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
     pos, keys = _empty(2, h, w), np.empty((2, h, w), dtype=np.uint32)
-    l0 = np.empty((h, w), dtype=np.float32)
-    luma_plane_kernel(_a(color0), l0)
+    if luma0 is not None and tuple(luma0.shape) != (1, h, w):
+        raise ValueError(f"luma0: expected shape {(1, h, w)}, got {tuple(luma0.shape)}")
+    if luma0 is not None and _f32cpu(luma0):
+        l0 = _a(luma0)[0]
+    else:  # (a luma0 of another type or device: this frame's own, the same values)
+        l0 = np.empty((h, w), dtype=np.float32)
+        luma_plane_kernel(_a(color0), l0)
     dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
     va = _a(vec)
     if sh:
@@ -1090,14 +1098,28 @@ def _padded_base(field):
     return b.numpy(), 1
 
 
+def field_luminance(color):
+    """fgcli.ops.fsr3.field_luminance by luma_plane_kernel."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (_f32cpu(color) and color.shape[0] == 3):
+        return FS.field_luminance(color)
+    from fgcli.kernels.field import luma_plane_kernel
+
+    out = _empty(1, *color.shape[-2:])
+    luma_plane_kernel(_a(color), out.numpy()[0])
+    return out
+
+
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
-                 tap_threshold=0.05, length_bound=None, block=1):
+                 tap_threshold=0.05, length_bound=None, block=1, luma0=None):
     """fgcli.ops.fsr3.vector_field: the entries (and the secondary walk's lengths and
     steps) by one numba kernel, the scatter (primary footprints and the secondary walk) by
     another. The field is uint32 (2, H, W), the reference's entries (all below 2**32) in
     half the bytes; unpack_vector_field reads either. block (a power of two): the entries
     kernel reads each pixel's block's vector and priority itself (the upsampled copies,
-    (2, H, W) float32 and (1, H, W) int64, cost ~3 ms per 1080p frame)."""
+    (2, H, W) float32 and (1, H, W) int64, cost ~3 ms per 1080p frame). luma0:
+    field_luminance(color0), when the caller has it (~1 ms per 1080p field)."""
     from fgcli.ops import fsr3 as FS
 
     sh = 0
@@ -1116,11 +1138,12 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     if not _cpu(color0, color1, vec, hi) or \
             (color1.shape[-2] + 2) * (color1.shape[-1] + 2) >= 2 ** 31:  # (int32 indices)
         return FS.vector_field(color0, color1, vec, hi, alpha, secondary, max_secondary,
-                               tap_threshold, length_bound)
+                               tap_threshold, length_bound, luma0=luma0)
     from fgcli.kernels.field import field_scatter_kernel
 
     walk_on = secondary and max_secondary > 0
-    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on, sh)
+    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on, sh,
+                                                luma0)
     n = (h + 2) * (w + 2)
     padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
     buf = [padded[0].reshape(-1), padded[1].reshape(-1)]

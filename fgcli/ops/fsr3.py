@@ -201,14 +201,28 @@ def entries_args(color0, color1, vec, alpha):
     return color0, color1, vec, check_alpha(alpha)
 
 
-def field_entries(color0, color1, vec, hi, alpha):
+def field_luminance(color: torch.Tensor) -> torch.Tensor:
+    """The luminance plane the vector field's agreement priority reads frame 0 in:
+    sanitize_values(luminance(sanitize_values(color))) (1, H, W) (the sampling sanitises
+    what it reads anyway). A pipeline that builds two fields from the same frame 0 (the
+    game field and the optical-flow field) computes it once (vector_field's luma0)."""
+    color = check_tensor(color, "color", 3, allow_batch=False)
+    return sanitize_values(luminance(sanitize_values(color)))
+
+
+def field_entries(color0, color1, vec, hi, alpha, luma0=None):
     """The per-source part of vector_field: (vf (2, N) sanitised vectors, pos (2, N) =
     p + (1 - alpha) vf, hi (N,), lo (N,), keys [x, y] (N,) int64 primary entries,
-    (h, w, alpha))."""
+    (h, w, alpha)). luma0: field_luminance(color0) when the caller has it."""
     color0, color1, vec, a = entries_args(color0, color1, vec, alpha)
     h, w = vec.shape[-2:]
     v = sanitize_mv(vec)
-    s0, inside = backward_warp(luminance(sanitize_values(color0)), v)
+    if luma0 is None:
+        luma0 = luminance(sanitize_values(color0))
+    else:
+        luma0 = check_tensor(luma0, "luma0", 1, allow_batch=False)
+        check_same(luma0, "luma0", (vec, "vec"))
+    s0, inside = backward_warp(luma0, v)
     l1 = luminance(sanitize_values(color1))
     lo = agreement_priority(s0, l1) * inside
     hi = hi.reshape(-1)
@@ -222,7 +236,8 @@ def field_entries(color0, color1, vec, hi, alpha):
 def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
                  hi: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
                  max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD,
-                 length_bound: float | None = None, block: int = 1) -> torch.Tensor:
+                 length_bound: float | None = None, block: int = 1,
+                 luma0: torch.Tensor | None = None) -> torch.Tensor:
     """FSR 3 vector field of the interpolated frame (GameMotionVectorField pass; with
     optical-flow vectors and magnitude priority, the OpticalFlowVectorField pass).
 
@@ -244,6 +259,7 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
         block: vec and hi given per block of block x block pixels ((2, ceil(H / block),
             ceil(W / block)) and (1, ...): the optical flow's), each pixel taking its
             block's (upsample_block_flow).
+        luma0: field_luminance(color0), when the caller has it (never changes the result).
 
     Returns:
         (2, H, W) int64 packed entries (x, y); 0 = not written.
@@ -251,7 +267,7 @@ def vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
     if block != 1:
         h, w = color1.shape[-2:]
         vec, hi = upsample_block_flow(vec, h, w, block), upsample_block_flow(hi, h, w, block)
-    vf, pos, hi, lo, keys, (h, w, a) = field_entries(color0, color1, vec, hi, alpha)
+    vf, pos, hi, lo, keys, (h, w, a) = field_entries(color0, color1, vec, hi, alpha, luma0)
     dev = vf.device
     buf = torch.zeros(2, (h + 2) * (w + 2), dtype=torch.int64, device=dev)
     for idx, m in _footprint(pos, h, w, tap_threshold):

@@ -49,7 +49,7 @@ class FSR3GameField(Stage):
             "max into the bilinear footprint of p + (1 - alpha) mv; secondary entries stepping "
             "back toward p.")
     inputs = ("color0", "color1", "depth1_d", "mv1_d", "alpha")
-    outputs = ("game_field",)
+    outputs = ("game_field", "field_luma0")
     options = (Option("secondary", "bool", True, "write secondary vectors"),
                Option("max_secondary", "int", 64, "longest secondary walk (px)", range=(0, 4096)))
 
@@ -70,18 +70,22 @@ class FSR3GameField(Stage):
         # exactly what running gives; the priorities only weight hole filling, and there
         # are no holes)
         return {"game_field": torch.cat([pack_entries(True, one, one * 0, z[c:c + 1])
-                                         for c in (0, 1)])}
+                                         for c in (0, 1)]), "field_luma0": None}
 
     def run(self, ctx):
         from fgcli.kernels import op
 
         vector_field = op("vector_field", ctx)
         hi = op("depth_priority", ctx)(ctx["depth1_d"])
+        # frame 0's luminance plane, which the optical-flow field reads too
+        l0 = op("field_luminance", ctx)(ctx["color0"])
         # the per-frame facts' largest vector component (GPU path) bounds the walk
         m = (ctx.get("facts") or {}).get("mv1_absmax")
         return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"], hi,
                                            ctx["alpha"], self.secondary, self.max_secondary,
-                                           length_bound=None if m is None else m * 2 ** 0.5)}
+                                           length_bound=None if m is None else m * 2 ** 0.5,
+                                           luma0=l0),
+                "field_luma0": l0}
 
 
 @register
@@ -110,7 +114,7 @@ class FSR3OpticalFlow(Stage):
             "sampled bilinearly per pixel, as the FidelityFX SDK (field=block), or per pixel "
             "with a pyramid fill (field=pixel).")
     inputs = ("color0", "color1", "alpha")
-    optional_inputs = ("state", "number0", "number1")
+    optional_inputs = ("state", "number0", "number1", "field_luma0")
     outputs = ("of_mv",)
     options = (
         Option("flow", "choice", "block", "block = FfxOpticalFlow-style block matching; dis = "
@@ -171,7 +175,8 @@ class FSR3OpticalFlow(Stage):
             return {"of_mv": op("sample_flow_field", ctx)(field, h, w, 8)}
         # per block (each pixel takes its block's vector and priority), or per pixel (dis)
         field = op("vector_field", ctx)(c0, c1, f, hi, ctx["alpha"], secondary=False,
-                                        block=1 if self.flow == "dis" else 8)
+                                        block=1 if self.flow == "dis" else 8,
+                                        luma0=ctx.get("field_luma0"))
         return {"of_mv": op("fill_packed_field", ctx)(field)[0]}
 
 
