@@ -595,11 +595,23 @@ def test_background_fill_sparse_holes_match_the_reference(sc):
     sparse[0, 1::4, 1::37] = False  # odd rows and columns: the second pixel of a cell
     sparse[0, 2, 70:75] = False
     sparse[0, h - 1, w - 1] = False
+    from unittest import mock
+
+    def poisoned(*shape, dtype=torch.float32):
+        """torch.empty with garbage that would show: the splats' rows without a hole are
+        left unwritten (splat_min_kernel's want path), so nothing may read them"""
+        t = torch.empty(shape, dtype=dtype)
+        return t.fill_(True if dtype == torch.bool else
+                       float("nan") if dtype.is_floating_point else 1 << 40)
+
     for filt in ("nearest", "bilinear"):
         args = (f["ch"], f["dh"], f["mh"], sparse, layers, f["cam1"], f["cam1"], filt,
                 f["ch"], f["dh"], f["mh"], 0.5, True, True)
         k, r = K.background_fill(*args), G.background_fill(*args)
         same_tree(f"background_fill sparse {sc} {filt}", k, r)
+        with mock.patch.object(K, "_empty", side_effect=poisoned):
+            same_tree(f"background_fill sparse, garbage memory {sc} {filt}",
+                      K.background_fill(*args), r)
         filled = int((r[3] & ~sparse).sum())
         assert filled >= 0.7 * int((~sparse).sum()), filled  # the holes did take fragments
 
@@ -728,7 +740,8 @@ def test_fill_holes_matches_the_reference(h, w):
 @pytest.mark.parametrize("h,w,sc", [(1, 1, 1.0), (9, 14, 1.0), (33, 51, 1.0), (33, 51, 2.0)])
 def test_splat_min_with_want_matches_the_full_splat_at_want_cells(h, w, sc):
     """The want path sets and reads buf at want cells only: there it must give what the
-    full splat (itself checked against the torch reference) gives; elsewhere empty."""
+    full splat (itself checked against the torch reference) gives; empty at the other
+    cells of the rows with a want cell; the rows without one are not written."""
     g = torch.Generator().manual_seed(h * 7 + w)
     hs, ws = (h, w) if sc == 1.0 else (2 * h, 2 * w)
     th, tw = (h, w)
@@ -742,14 +755,24 @@ def test_splat_min_with_want_matches_the_full_splat_at_want_cells(h, w, sc):
     full_src, full_dep = K._splat_min(px, py, sc, dn, use, th, tw)
     assert torch.equal(full_src.reshape(th, tw), ref_src.reshape(th, tw))
     assert torch.equal(full_dep.reshape(th, tw), ref_dep.reshape(th, tw))
-    for frac in (0.0, 0.3, 1.0):
+    from unittest import mock
+
+    for frac in (0.0, 0.02, 0.3, 1.0):
         want = (np.random.default_rng(w).random((th, tw)) < frac).astype(np.uint8)
-        src, dep = K._splat_min(px, py, sc, dn, use, th, tw, want)
+        want[th // 2] = 0  # (a row without a want cell)
+        # the outputs' memory filled with a marker first: the rows without a want cell
+        # must keep it (not written), the others must not
+        marks = (torch.full((th, tw), 12345, dtype=torch.int64), torch.full((th, tw), -7.0))
+        with mock.patch.object(K, "_empty", side_effect=[t.clone() for t in marks]):
+            src, dep = K._splat_min(px, py, sc, dn, use, th, tw, want)
+        src, dep = src.reshape(th, tw), dep.reshape(th, tw)
         m = torch.from_numpy(want.astype(bool))
-        assert torch.equal(src.reshape(th, tw)[m], full_src.reshape(th, tw)[m])
-        assert torch.equal(dep.reshape(th, tw)[m], full_dep.reshape(th, tw)[m])
-        assert (src.reshape(th, tw)[~m] == -1).all()
-        assert torch.isinf(dep.reshape(th, tw)[~m]).all()
+        rows = m.any(dim=1)
+        assert torch.equal(src[m], full_src.reshape(th, tw)[m])
+        assert torch.equal(dep[m], full_dep.reshape(th, tw)[m])
+        other = rows[:, None] & ~m
+        assert (src[other] == -1).all() and torch.isinf(dep[other]).all()
+        assert (src[~rows] == 12345).all() and (dep[~rows] == -7.0).all()
 
 
 @pytest.mark.parametrize("h,w", [(1, 1), (9, 14), (33, 51), (15, 200), (70, 90)])

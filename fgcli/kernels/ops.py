@@ -1624,8 +1624,9 @@ def dilated_positions(traj, depth1, cam1, dynamic, alpha, motion="linear", geom=
 
 def _splat_min(px, py, sc, dn, use, h, w, want=None):
     """fgcli.ops.gffe._splat_min(floor(px / sc), floor(py / sc), dn, use, h, w) by one
-    kernel (px / 1.0 is px itself). want: an (h, w) uint8 array; only those target cells
-    are splatted (the result elsewhere: empty), for callers that read no other."""
+    kernel (px / 1.0 is px itself). want: an (h, w) uint8 array (0 / 1); only those target
+    cells are splatted, and only the rows with one are written (their other cells: empty;
+    the other rows: unwritten memory), for callers that read no other rows."""
     from fgcli.kernels.gffe import splat_min_kernel
 
     src, dep = _empty(h, w, dtype=torch.int64), _empty(h, w)
@@ -1649,7 +1650,10 @@ def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes=None):
     """Both background layers' fragments seen from cam_x, nearest-depth splatted: (source
     index, depth) of layer 0 at H x W and of layer 1 at h2 x w2 (layer scale sc), and the
     fragments' positions (px0, py0, px1, py1) for _read_layers_bilinear. holes: an (H, W)
-    uint8 array; only the cells a hole reads are splatted (the rest comes out empty). A
+    uint8 array; only the cells a hole reads are splatted, on the rows a hole reads (the
+    rest of those rows comes out empty; other rows are unwritten: bg_fill_kernel reads
+    the splats only in spans of 64 pixels with a hole, at (y, x) or, for a half-size
+    layer 1, (y // 2, x // 2), whose want row has that hole's cell). A
     layer without a valid cell is not projected at all (its splat: empty everywhere, as
     _splat_min would make it; ~5 ms per 1080p frame of the stateless benchmark, where
     layer 1 is always empty)."""
