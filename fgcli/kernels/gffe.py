@@ -385,6 +385,11 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
     for pr in prange(h):
         r = np.int64(pr) * w
         if has_want:
+            nw = U0  # (a row without a want cell, most of them: one vectorised pass)
+            for x in range(w):
+                nw |= want[r + x]
+            if nw == U0:
+                continue
             for x in range(w):
                 if want[r + x] != U0:
                     buf[r + x] = I64_MAX
