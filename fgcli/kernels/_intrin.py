@@ -2,7 +2,7 @@
 kernels use FMA for ``add(alpha=)``, ``lerp`` and friends, so the kernels must too to stay
 bit-identical), an atomic signed int64 minimum (the nearest-depth-wins splat), 32-bit
 indexed loads for the gathers (``mad32``, ``ld32``, ``ld_pair``), SSE4.1's mpsadbw
-(the block search), 16-lane maxima (``umax16``) and the warps' 16-lane tap fetches from
+(the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps' 16-lane tap fetches from
 windows of source rows (``bilinear16x3``, ``nearest16``: AVX-512)."""
 from __future__ import annotations
 
@@ -131,6 +131,30 @@ def umax16(typingctx, buf, q, src, j):
         a = builder.load(pb, align=4)
         b = builder.load(ps, align=4)
         builder.store(builder.select(builder.icmp_unsigned(">", b, a), b, a), pb, align=4)
+        return context.get_dummy_value()
+
+    return types.void(buf, q, src, j), codegen
+
+
+@intrinsic
+def fmin16(typingctx, buf, q, src, j):
+    """buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) as one 16-lane vector operation
+    (1-D C-contiguous float32 arrays, no NaN in either: the caller's values are sanitised
+    depths; no bounds checks)."""
+    if not all(isinstance(a, types.Array) and a.dtype == types.float32 and a.ndim == 1
+               and a.layout == "C" for a in (buf, src)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        bty, qty, sty, jty = sig.args
+        v = ir.VectorType(ir.FloatType(), 16)
+        pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
+                             v.as_pointer())
+        ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
+                             v.as_pointer())
+        a = builder.load(pb, align=4)
+        b = builder.load(ps, align=4)
+        builder.store(builder.select(builder.fcmp_ordered("<", b, a), b, a), pb, align=4)
         return context.get_dummy_value()
 
     return types.void(buf, q, src, j), codegen

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
-from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x1, ld32, mad32, umax16
+from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x1, fmin16, ld32, mad32, umax16
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -214,7 +214,10 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
     out in vectorised loops into row buffers, then a plain loop takes the minima: the
     float work no longer sits in the serial loop, and no torch pass runs in between
     (torch's idle OpenMP threads spin for a while after each op and slowed a second
-    Python thread by half)."""
+    Python thread by half). 16 sources continuing each other's footprints one texel to
+    the right (field_scatter_kernel's runs) take four 16-lane minima (fgcli.kernels.
+    _intrin.fmin16; the sanitised depths hold no NaN, so the minimum is unique): 8.6 ->
+    7.5 ms per 1080p pair on the benchmark's frames, in one process."""
     h, w = depth.shape
     h32 = I32(h)
     w32 = I32(w)
@@ -232,6 +235,7 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
         z1 = np.empty(w, dtype=np.float32)
         z2 = np.empty(w, dtype=np.float32)
         z3 = np.empty(w, dtype=np.float32)
+        brk = np.empty(w, dtype=np.int64)
         for y in range(h):
             yf = F32(y)
             dr = depth[y]
@@ -261,15 +265,37 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
                 z1[x] = z if t10 & oxb & oya else inf
                 z2[x] = z if t01 & oxa & oyb else inf
                 z3[x] = z if t11 & oxb & oyb else inf
-            for x in range(w):
-                q = q0[x]
-                q1 = q + dx[x]
-                q2 = q + dy[x]
-                q3 = q2 + dx[x]
-                bufs[q] = min(bufs[q], z0[x])
-                bufs[q1] = min(bufs[q1], z1[x])
-                bufs[q2] = min(bufs[q2], z2[x])
-                bufs[q3] = min(bufs[q3], z3[x])
+            # runs (field_scatter_kernel's): source x continues x - 1's footprint one
+            # texel to the right; 16 sources of one run take four 16-lane minima
+            qa, qb = q0[1:w], q0[0:w - 1]
+            xa_, xb_ = dx[1:w], dx[0:w - 1]
+            ya_, yb_ = dy[1:w], dy[0:w - 1]
+            br = brk[1:w]
+            for x in range(w - 1):
+                br[x] = np.int64((qa[x] != qb[x] + 1) | (xa_[x] != xb_[x]) |
+                                 (ya_[x] != yb_[x]))
+            brk[0] = 1
+            for x in range(1, w):
+                brk[x] += brk[x - 1]
+            x = 0
+            while x < w:
+                if x + 16 <= w and brk[x + 15] == brk[x]:
+                    q = q0[x]
+                    fmin16(bufs, q, z0, x)
+                    fmin16(bufs, q + dx[x], z1, x)
+                    fmin16(bufs, q + dy[x], z2, x)
+                    fmin16(bufs, q + dy[x] + dx[x], z3, x)
+                    x += 16
+                else:
+                    q = q0[x]
+                    q1 = q + dx[x]
+                    q2 = q + dy[x]
+                    q3 = q2 + dx[x]
+                    bufs[q] = min(bufs[q], z0[x])
+                    bufs[q1] = min(bufs[q1], z1[x])
+                    bufs[q2] = min(bufs[q2], z2[x])
+                    bufs[q3] = min(bufs[q3], z3[x])
+                    x += 1
 
 
 # ----------------------------------------------------------------------------- entries
