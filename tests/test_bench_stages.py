@@ -1,4 +1,5 @@
-"""benchmarks/stages.py: the sequence mode (a RunState carried over consecutive frames)."""
+"""benchmarks/stages.py: the sequence mode (a RunState carried over consecutive frames);
+benchmarks/ab.py: two versions in one process."""
 import json
 import os
 import subprocess
@@ -38,3 +39,26 @@ def test_stages_benchmark_on_footage(tmp_path):
     assert j["size"] == [256, 144] and "orbit/input" in j["frames"]
     assert j["pipelines"]["gffe-extrap"]["extrap"]["ms_per_frame"] > 0  # (its cameras read)
     assert set(j["pipelines"]["mob-fgsr"]) == {"interp", "extrap"}
+
+
+def test_ab_benchmark_runs_two_versions(tmp_path):
+    """benchmarks/ab.py exports a revision as the package fgcli_ab (every fgcli import
+    renamed) and times both versions in turn: this checkout's HEAD against itself, torch
+    ops (no kernels to compile), a tiny frame, both of mob-fgsr's modes."""
+    env = dict(os.environ, HOME=str(tmp_path))
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "ab.py"), "HEAD",
+                        "--pipelines", "mob-fgsr", "--repeat", "2", "--size", "64x36",
+                        "--backend", "torch"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = [ln for ln in r.stdout.splitlines() if ln.startswith("| mob-fgsr |")]
+    assert [ln.split("|")[2].strip() for ln in rows] == ["interp", "extrap"]
+    for ln in rows:
+        old, new, ratio = (c.strip() for c in ln.split("|")[3:6])
+        assert float(old.split()[0]) > 0 and float(new.split()[0]) > 0 and float(ratio) > 0
+    base = next((tmp_path / ".cache" / "fgen-ab").iterdir())
+    for d, _, files in os.walk(base / "fgcli_ab"):
+        for f in files:
+            if f.endswith(".py"):
+                text = open(os.path.join(d, f), encoding="utf-8").read()
+                assert "from fgcli." not in text and "import fgcli\n" not in text, f
