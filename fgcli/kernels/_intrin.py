@@ -113,51 +113,41 @@ def ld_pair(typingctx, arr, i):
     return types.UniTuple(types.float32, 2)(arr, i), codegen
 
 
-@intrinsic
-def umax16(typingctx, buf, q, src, j):
-    """buf[q:q + 16] = max(buf[q:q + 16], src[j:j + 16]) as one 16-lane vector operation
-    (1-D C-contiguous uint32 arrays; no bounds checks)."""
-    if not all(isinstance(a, types.Array) and a.dtype == types.uint32 and a.ndim == 1
-               and a.layout == "C" for a in (buf, src)):
-        return None
+def _lanes16(elem, lane, pick, doc):
+    """An intrinsic f(buf, q, src, j): buf[q:q + 16] = pick(buf[q:q + 16], src[j:j + 16])
+    as one 16-lane vector operation on 1-D C-contiguous arrays of numba type elem (LLVM
+    lane type lane; no bounds checks)."""
+    @intrinsic
+    def op(typingctx, buf, q, src, j):
+        if not all(isinstance(a, types.Array) and a.dtype == elem and a.ndim == 1
+                   and a.layout == "C" for a in (buf, src)):
+            return None
 
-    def codegen(context, builder, sig, args):
-        bty, qty, sty, jty = sig.args
-        v = ir.VectorType(ir.IntType(32), 16)
-        pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
-                             v.as_pointer())
-        ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
-                             v.as_pointer())
-        a = builder.load(pb, align=4)
-        b = builder.load(ps, align=4)
-        builder.store(builder.select(builder.icmp_unsigned(">", b, a), b, a), pb, align=4)
-        return context.get_dummy_value()
+        def codegen(context, builder, sig, args):
+            bty, qty, sty, jty = sig.args
+            v = ir.VectorType(lane, 16)
+            pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
+                                 v.as_pointer())
+            ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
+                                 v.as_pointer())
+            a = builder.load(pb, align=4)
+            b = builder.load(ps, align=4)
+            builder.store(pick(builder, a, b), pb, align=4)
+            return context.get_dummy_value()
 
-    return types.void(buf, q, src, j), codegen
+        return types.void(buf, q, src, j), codegen
+
+    op.__doc__ = doc
+    return op
 
 
-@intrinsic
-def fmin16(typingctx, buf, q, src, j):
-    """buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) as one 16-lane vector operation
-    (1-D C-contiguous float32 arrays, no NaN in either: the caller's values are sanitised
-    depths; no bounds checks)."""
-    if not all(isinstance(a, types.Array) and a.dtype == types.float32 and a.ndim == 1
-               and a.layout == "C" for a in (buf, src)):
-        return None
-
-    def codegen(context, builder, sig, args):
-        bty, qty, sty, jty = sig.args
-        v = ir.VectorType(ir.FloatType(), 16)
-        pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
-                             v.as_pointer())
-        ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
-                             v.as_pointer())
-        a = builder.load(pb, align=4)
-        b = builder.load(ps, align=4)
-        builder.store(builder.select(builder.fcmp_ordered("<", b, a), b, a), pb, align=4)
-        return context.get_dummy_value()
-
-    return types.void(buf, q, src, j), codegen
+umax16 = _lanes16(types.uint32, ir.IntType(32),
+                  lambda bd, a, b: bd.select(bd.icmp_unsigned(">", b, a), b, a),
+                  "buf[q:q + 16] = max(buf[q:q + 16], src[j:j + 16]) (uint32 arrays).")
+fmin16 = _lanes16(types.float32, ir.FloatType(),
+                  lambda bd, a, b: bd.select(bd.fcmp_ordered("<", b, a), b, a),
+                  "buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no "
+                  "NaN in either: the caller's values are sanitised depths).")
 
 
 def _host_features() -> list[str]:

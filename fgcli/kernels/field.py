@@ -43,6 +43,24 @@ def _taps(px, py, h, w, thr):
     return xa, xb, ya, yb, ex * ey > thr, fx * ey > thr, ex * fy > thr, fx * fy > thr
 
 
+@njit(**INLINE)
+def _run_counts(q0, dx, dy, brk, m):
+    """The footprint scatters' runs: brk[j] = the number of run starts among sources
+    0 .. j, where source j starts a run unless it continues j - 1's footprint one texel to
+    the right (the same tap offsets, the next base texel). Sources j .. j + 15 are one run
+    when brk[j + 15] == brk[j]. (Slices: an index with a signed offset stops LLVM from
+    vectorising the loop.)"""
+    qa, qb = q0[1:m], q0[0:m - 1]
+    xa_, xb_ = dx[1:m], dx[0:m - 1]
+    ya_, yb_ = dy[1:m], dy[0:m - 1]
+    br = brk[1:m]
+    for j in range(m - 1):
+        br[j] = np.int64((qa[j] != qb[j] + 1) | (xa_[j] != xb_[j]) | (ya_[j] != yb_[j]))
+    brk[0] = 1
+    for j in range(1, m):  # prefix counts
+        brk[j] += brk[j - 1]
+
+
 _CHUNK = 2048  # sources per vectorised footprint pass
 
 
@@ -99,17 +117,7 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
                 k1[j] = a if t10 else z
                 k2[j] = a if t01 else z
                 k3[j] = a if t11 else z
-            # runs: source j continues j - 1's footprint one texel to the right
-            qa, qb = q0[1:m], q0[0:m - 1]
-            xa_, xb_ = dx[1:m], dx[0:m - 1]
-            ya_, yb_ = dy[1:m], dy[0:m - 1]
-            br = brk[1:m]
-            for j in range(m - 1):
-                br[j] = np.int64((qa[j] != qb[j] + 1) | (xa_[j] != xb_[j]) |
-                                 (ya_[j] != yb_[j]))
-            brk[0] = 1
-            for j in range(1, m):  # prefix counts of the breaks
-                brk[j] += brk[j - 1]
+            _run_counts(q0, dx, dy, brk, m)
             j = 0
             while j < m:
                 if j + 16 <= m and brk[j + 15] == brk[j]:  # 16 sources, one run
@@ -265,18 +273,7 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
                 z1[x] = z if t10 & oxb & oya else inf
                 z2[x] = z if t01 & oxa & oyb else inf
                 z3[x] = z if t11 & oxb & oyb else inf
-            # runs (field_scatter_kernel's): source x continues x - 1's footprint one
-            # texel to the right; 16 sources of one run take four 16-lane minima
-            qa, qb = q0[1:w], q0[0:w - 1]
-            xa_, xb_ = dx[1:w], dx[0:w - 1]
-            ya_, yb_ = dy[1:w], dy[0:w - 1]
-            br = brk[1:w]
-            for x in range(w - 1):
-                br[x] = np.int64((qa[x] != qb[x] + 1) | (xa_[x] != xb_[x]) |
-                                 (ya_[x] != yb_[x]))
-            brk[0] = 1
-            for x in range(1, w):
-                brk[x] += brk[x - 1]
+            _run_counts(q0, dx, dy, brk, w)  # 16 sources of one run: four 16-lane minima
             x = 0
             while x < w:
                 if x + 16 <= w and brk[x + 15] == brk[x]:
