@@ -1245,8 +1245,9 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
     unprojection's loop, the sky count's, the test's on the row just written, the count's
     (each loop vectorised on its own). older (j, 4, h, w): the trajectory's older planes,
     P_0's row copied into each while it is in cache, on the rows without sky (the caller
-    copies the sky rows after the sky pass; a copy of the whole plane afterwards read it
-    back from memory: 1.9 ms per 1080p frame, 5 on a sequence)."""
+    copies the sky rows after the sky pass). Against one copy of the whole plane
+    afterwards, in one process: 0.4-0.9 ms less per 1080p frame without sky, 0.1-0.2 ms
+    on the benchmark's frames (sky in 508 of 1080 rows)."""
     h, w = depth.shape
     wf = F32(w)
     hf = F32(h)

@@ -1270,7 +1270,7 @@ def _sky_rows(nsky, ss):
     else:  # the sky rows alone (the rows between them are never read; those a rows=
         # pass skipped hold garbage: NaNs and denormals slow MKL's sqrt down 5x): MKL's
         # result for an element does not depend on its neighbours or its position
-        # (tests/test_kernels.py::test_torch_sqrt_position_free)
+        # (tests/test_kernels.py::test_torch_math_position_free)
         sub = torch.from_numpy(ss[rows])
         torch.sqrt(sub, out=sub)
         ss[rows] = sub.numpy()
