@@ -813,6 +813,8 @@ def test_fsr3_block_vector_field(h, w):
             f[0].view(-1)[1] = NAN
             f[1].view(-1)[2] = INF
             f[0].view(-1)[3] = -1e9
+        if nbx >= 4:  # blocks sharing a vector: runs of 16 and more sources
+            f[:, nby // 2:, :nbx // 2 + 2] = torch.tensor([2.3, -1.7])[:, None, None]
         hi = fsr3.magnitude_priority(f)
         up = (fsr3.upsample_block_flow(f, h, w, b), fsr3.upsample_block_flow(hi, h, w, b))
         for a in (0.5, 0.25):

@@ -61,6 +61,46 @@ def _run_counts(q0, dx, dy, brk, m):
         brk[j] += brk[j - 1]
 
 
+@njit(**INLINE)
+def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk):
+    """The footprint scatter of m sources (positions px, py, entries ky: arrays of at least
+    m) into buf: their footprints in a vectorised pass into q0, dx, dy, k0 .. k3 (buffers
+    of at least m), then the maxima, 16 sources per vector operation where they are one
+    run (_run_counts), else one by one."""
+    w2 = I32(w + 2)
+    z = np.uint32(0)
+    for j in range(m):
+        xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px[j], py[j], h, w, thr)
+        a = ky[j]
+        q0[j] = ya * w2 + xa
+        dx[j] = xb - xa
+        dy[j] = (yb - ya) * w2
+        k0[j] = a if t00 else z  # entries are > 0: 0 never wins
+        k1[j] = a if t10 else z
+        k2[j] = a if t01 else z
+        k3[j] = a if t11 else z
+    _run_counts(q0, dx, dy, brk, m)
+    j = 0
+    while j < m:
+        if j + 16 <= m and brk[j + 15] == brk[j]:  # 16 sources, one run
+            q = q0[j]
+            umax16(buf, q, k0, j)
+            umax16(buf, q + dx[j], k1, j)
+            umax16(buf, q + dy[j], k2, j)
+            umax16(buf, q + dy[j] + dx[j], k3, j)
+            j += 16
+        else:
+            q = q0[j]
+            q1 = q + dx[j]
+            q2 = q + dy[j]
+            q3 = q2 + dx[j]
+            buf[q] = max(buf[q], k0[j])
+            buf[q1] = max(buf[q1], k1[j])
+            buf[q2] = max(buf[q2], k2[j])
+            buf[q3] = max(buf[q3], k3[j])
+            j += 1
+
+
 _CHUNK = 2048  # sources per vectorised footprint pass
 
 
@@ -87,7 +127,6 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
     loops in one: numba fuses consecutive parallel loops of the same length, which would
     run a walk before the other component's primaries exist."""
     n = pos.shape[1]
-    w2 = I32(w + 2)
     for pc in prange(2):
         c = np.int64(pc)
         buf = buf0 if c == 0 else buf1
@@ -101,42 +140,11 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
         k2 = np.empty(_CHUNK, dtype=np.uint32)
         k3 = np.empty(_CHUNK, dtype=np.uint32)
         brk = np.empty(_CHUNK, dtype=np.int64)
-        z = np.uint32(0)
         for s in range(0, n, _CHUNK):
             m = min(_CHUNK, n - s)
-            px = pos[0, s:s + m]
-            py = pos[1, s:s + m]
-            ky = key0[s:s + m] if c == 0 else key1[s:s + m]
-            for j in range(m):
-                xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px[j], py[j], h, w, thr)
-                a = ky[j]
-                q0[j] = ya * w2 + xa
-                dx[j] = xb - xa
-                dy[j] = (yb - ya) * w2
-                k0[j] = a if t00 else z  # entries are > 0: 0 never wins
-                k1[j] = a if t10 else z
-                k2[j] = a if t01 else z
-                k3[j] = a if t11 else z
-            _run_counts(q0, dx, dy, brk, m)
-            j = 0
-            while j < m:
-                if j + 16 <= m and brk[j + 15] == brk[j]:  # 16 sources, one run
-                    q = q0[j]
-                    umax16(buf, q, k0, j)
-                    umax16(buf, q + dx[j], k1, j)
-                    umax16(buf, q + dy[j], k2, j)
-                    umax16(buf, q + dy[j] + dx[j], k3, j)
-                    j += 16
-                else:
-                    q = q0[j]
-                    q1 = q + dx[j]
-                    q2 = q + dy[j]
-                    q3 = q2 + dx[j]
-                    buf[q] = max(buf[q], k0[j])
-                    buf[q1] = max(buf[q1], k1[j])
-                    buf[q2] = max(buf[q2], k2[j])
-                    buf[q3] = max(buf[q3], k3[j])
-                    j += 1
+            _scatter_max(buf, pos[0, s:s + m], pos[1, s:s + m],
+                         key0[s:s + m] if c == 0 else key1[s:s + m], m, h, w, thr, q0, dx, dy,
+                         k0, k1, k2, k3, brk)
 
 
 @njit(**KERNEL)
@@ -356,11 +364,10 @@ def luma_plane_kernel(c, out):
 
 
 @njit(**INLINE)
-def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
-    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (row
-    arrays: the frame's rows, or a block grid's row buffers)."""
-    h = pos.shape[1]
-    w = pos.shape[2]
+def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins):
+    """s0[x] = frame 0's luminance l0 read bilinearly at (x, y) + (V0[x], V1[x])
+    (sanitised vectors; grid_sample's arithmetic, zero vectors exact) and ins[x] = 1.0
+    where that point is on screen, for the pixels of row y."""
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
@@ -372,8 +379,6 @@ def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, di
     gyy = gyn[y]
     lo_y = F32(-0.5) - yf
     hi_y = F32(h - 0.5) - yf
-    s0 = np.empty(w, dtype=np.float32)
-    ins = np.empty(w, dtype=np.float32)
     if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
         XA = np.empty(w, dtype=np.int32)
         XB = np.empty(w, dtype=np.int32)
@@ -404,20 +409,41 @@ def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, di
                                                  hm1, w32, h32)
         r = _bil_pair(l0, p, rs, xi, nw, ne, sw, se)
         s0[x] = l0[y, x] if zero else r
+
+
+@njit(**INLINE)
+def _agreement(a, b, inside):
+    """agreement_priority of the samples a (frame 0) and b (frame 1), times inside: the
+    5-bit lo of an entry (int64)."""
+    a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
+    b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
+    r = (a if a < b else b) / (b if a < b else a)
+    r = F32(1.0) if r != r else r
+    lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
+    return lo if inside != F32(0.0) else np.int64(0)
+
+
+@njit(**INLINE)
+def _prio(hv, lo):
+    """An entry's 16-bit priority: primary flag | hi (clamped to 10 bits) | lo."""
+    hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
+    return (hv << 5) | lo | 32768
+
+
+@njit(**INLINE)
+def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
+    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (row
+    arrays: the frame's rows, or a block grid's row buffers)."""
+    h = pos.shape[1]
+    w = pos.shape[2]
+    yf = F32(y)
+    s0 = np.empty(w, dtype=np.float32)
+    ins = np.empty(w, dtype=np.float32)
+    _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins)
     for x in range(w):
         vx = smv_b(V0[x])
         vy = smv_b(V1[x])
-        a = s0[x]
-        b = _lum(c1, y, x)
-        a = (F32(0.0) if a < F32(0.0) else a) + F32(0.001)
-        b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
-        r = (a if a < b else b) / (b if a < b else a)
-        r = F32(1.0) if r != r else r
-        lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
-        lo = lo if ins[x] != F32(0.0) else np.int64(0)
-        hv = HR[x]
-        hv = 0 if hv < 0 else (1023 if hv > 1023 else hv)
-        prio = (hv << 5) | lo | 32768
+        prio = _prio(HR[x], _agreement(s0[x], _lum(c1, y, x), ins[x]))
         keys[0, y, x] = _pack(prio, vx)
         keys[1, y, x] = _pack(prio, vy)
         pos[0, y, x] = F32(x) + vx * a1
@@ -471,6 +497,75 @@ def entries_block_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, s
             V1[x] = vec[1, yb, xb]
             HR[x] = hi[yb, xb]
         _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist)
+
+
+@njit(**KERNEL)
+def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
+    """The per-pixel part of the entries of a field whose vectors vec (2, ., .) are per
+    block of 2**sh x 2**sh pixels (entries_block_kernel's values): lo (H, W) uint8 = the
+    5-bit agreement of frame 0's luminance l0 at p + v with frame 1's at p (0 where p + v
+    is off screen). field_scatter_block_kernel makes the entries from it and the blocks'
+    vectors and priorities as it scatters them: no frame-sized positions and entries (four
+    planes, 33 MB at 1080p) written here and read back there."""
+    h, w = lo.shape
+    for py in prange(h):
+        y = np.int64(py)
+        V0 = np.empty(w, dtype=np.float32)
+        V1 = np.empty(w, dtype=np.float32)
+        s0 = np.empty(w, dtype=np.float32)
+        ins = np.empty(w, dtype=np.float32)
+        yb = y >> sh
+        for x in range(w):
+            xb = np.int64(x) >> sh
+            V0[x] = vec[0, yb, xb]
+            V1[x] = vec[1, yb, xb]
+        _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins)
+        for x in range(w):
+            lo[y, x] = np.uint8(_agreement(s0[x], _lum(c1, y, x), ins[x]))
+
+
+@njit(**KERNEL)
+def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
+    """field_scatter_kernel for a field of block vectors (agreement_block_kernel's): each
+    row's sources are made as entries_block_kernel makes them (the block's sanitised
+    vector and priority, the pixel's agreement lo (H, W) uint8; positions p + a1 v) into
+    row buffers, then scattered (_scatter_max), one component per thread."""
+    h, w = lo.shape
+    for pc in prange(2):
+        c = np.int64(pc)
+        buf = buf0 if c == 0 else buf1
+        for q in range(buf.shape[0]):
+            buf[q] = 0
+        PX = np.empty(w, dtype=np.float32)
+        PY = np.empty(w, dtype=np.float32)
+        KY = np.empty(w, dtype=np.uint32)
+        V0 = np.empty(w, dtype=np.float32)
+        V1 = np.empty(w, dtype=np.float32)
+        HR = np.empty(w, dtype=np.int64)
+        q0 = np.empty(w, dtype=np.int32)
+        dx = np.empty(w, dtype=np.int32)
+        dy = np.empty(w, dtype=np.int32)
+        k0 = np.empty(w, dtype=np.uint32)
+        k1 = np.empty(w, dtype=np.uint32)
+        k2 = np.empty(w, dtype=np.uint32)
+        k3 = np.empty(w, dtype=np.uint32)
+        brk = np.empty(w, dtype=np.int64)
+        for y in range(h):
+            yb = y >> sh
+            if y == 0 or yb != (y - 1) >> sh:  # a new row of blocks: its sources' values
+                for x in range(w):
+                    xb = np.int64(x) >> sh
+                    V0[x] = smv_b(vec[0, yb, xb])
+                    V1[x] = smv_b(vec[1, yb, xb])
+                    HR[x] = _prio(hi[yb, xb], np.int64(0))
+                for x in range(w):
+                    PX[x] = F32(x) + V0[x] * a1
+            VC = V0 if c == 0 else V1
+            yf = F32(y)
+            for x in range(w):
+                KY[x] = np.uint32(_pack(HR[x] | np.int64(lo[y, x]), VC[x]))
+                PY[x] = yf + V1[x] * a1
+            _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
 
 
 @njit(**KERNEL)

@@ -1111,6 +1111,37 @@ def field_luminance(color):
     return out
 
 
+def _block_field(color0, color1, vec, hi, alpha, sh, thr, luma0):
+    """vector_field of block vectors without the secondary walk (the optical-flow field):
+    the pixels' agreement by one kernel, the entries made and scattered by another, or
+    None where _field_entries' general path serves (frames too large for pair loads)."""
+    from fgcli.ops import fsr3 as FS
+
+    from fgcli.kernels.field import (agreement_block_kernel, field_scatter_block_kernel,
+                                     luma_plane_kernel)
+    from fgcli.kernels.warp import flat_ok
+
+    h, w = color1.shape[-2:]
+    if not flat_ok(h, w, 1):
+        return None
+    color0, color1, _, a = FS.entries_args(color0, color1, color1[:2], alpha)
+    if luma0 is not None and tuple(luma0.shape) != (1, h, w):
+        raise ValueError(f"luma0: expected shape {(1, h, w)}, got {tuple(luma0.shape)}")
+    if luma0 is not None and _f32cpu(luma0):
+        l0 = _a(luma0)[0]
+    else:  # (a luma0 of another type or device: this frame's own, the same values)
+        l0 = np.empty((h, w), dtype=np.float32)
+        luma_plane_kernel(_a(color0), l0)
+    gxn, gyn, kx, ky = _grid(h, w)
+    va = _a(vec)
+    lo = np.empty((h, w), dtype=np.uint8)
+    agreement_block_kernel(l0, _a(color1), va, sh, gxn, gyn, kx, ky, lo)
+    padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
+    field_scatter_block_kernel(va, _a(hi).reshape(hi.shape[-2:]), sh, lo, F32(1.0 - a),
+                               F32(thr), padded[0].reshape(-1), padded[1].reshape(-1))
+    return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
+
+
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
                  tap_threshold=0.05, length_bound=None, block=1, luma0=None):
     """fgcli.ops.fsr3.vector_field: the entries (and the secondary walk's lengths and
@@ -1142,6 +1173,10 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     from fgcli.kernels.field import field_scatter_kernel
 
     walk_on = secondary and max_secondary > 0
+    if sh > 0 and not walk_on:
+        r = _block_field(color0, color1, vec, hi, alpha, sh, tap_threshold, luma0)
+        if r is not None:
+            return r
     pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on, sh,
                                                 luma0)
     n = (h + 2) * (w + 2)
