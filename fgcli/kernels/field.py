@@ -432,8 +432,8 @@ def _prio(hv, lo):
 
 @njit(**INLINE)
 def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
-    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (row
-    arrays: the frame's rows, or a block grid's row buffers)."""
+    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (the
+    frame's rows)."""
     h = pos.shape[1]
     w = pos.shape[2]
     yf = F32(y)
@@ -468,8 +468,8 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
     and sum); the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom)
     and then walk_steps_kernel the unit steps.
 
-    The rows' work is _entries_row's; entries_block_kernel feeds it vectors and
-    priorities per block."""
+    The rows' work is _entries_row's (its sampling, _row_samples, is
+    agreement_block_kernel's too)."""
     h = pos.shape[1]
     for py in prange(h):
         y = np.int64(py)
@@ -478,31 +478,9 @@ def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
 
 
 @njit(**KERNEL)
-def entries_block_kernel(l0, c1, vec, hi, sh, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
-    """entries_kernel for vectors vec (2, ., .) and priorities hi (., .) per block of
-    2**sh x 2**sh pixels (the optical flow's 8 x 8 blocks: sh = 3), which each of its
-    pixels takes (upsample_block_flow's values, without the frame-sized copies: a row's
-    into row buffers)."""
-    h = pos.shape[1]
-    w = pos.shape[2]
-    for py in prange(h):
-        y = np.int64(py)
-        V0 = np.empty(w, dtype=np.float32)
-        V1 = np.empty(w, dtype=np.float32)
-        HR = np.empty(w, dtype=np.int64)
-        yb = y >> sh
-        for x in range(w):
-            xb = np.int64(x) >> sh
-            V0[x] = vec[0, yb, xb]
-            V1[x] = vec[1, yb, xb]
-            HR[x] = hi[yb, xb]
-        _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist)
-
-
-@njit(**KERNEL)
 def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
     """The per-pixel part of the entries of a field whose vectors vec (2, ., .) are per
-    block of 2**sh x 2**sh pixels (entries_block_kernel's values): lo (H, W) uint8 = the
+    block of 2**sh x 2**sh pixels (each pixel takes its block's): lo (H, W) uint8 = the
     5-bit agreement of frame 0's luminance l0 at p + v with frame 1's at p (0 where p + v
     is off screen). field_scatter_block_kernel makes the entries from it and the blocks'
     vectors and priorities as it scatters them: no frame-sized positions and entries (four
@@ -527,9 +505,10 @@ def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
 @njit(**KERNEL)
 def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
     """field_scatter_kernel for a field of block vectors (agreement_block_kernel's): each
-    row's sources are made as entries_block_kernel makes them (the block's sanitised
-    vector and priority, the pixel's agreement lo (H, W) uint8; positions p + a1 v) into
-    row buffers, then scattered (_scatter_max), one component per thread."""
+    row's sources are made into row buffers as entries_kernel makes them from the
+    upsampled blocks (the block's sanitised vector and priority, the pixel's agreement lo
+    (H, W) uint8, positions p + a1 v), then scattered (_scatter_max), one component per
+    thread. A row of blocks' vectors, priorities and column positions are made once."""
     h, w = lo.shape
     for pc in prange(2):
         c = np.int64(pc)

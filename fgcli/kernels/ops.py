@@ -782,7 +782,8 @@ def _warm_kernels(families=None) -> tuple:
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,
-                    field.entries_kernel, field.entries_block_kernel,
+                    field.entries_kernel, field.agreement_block_kernel,
+                    field.field_scatter_block_kernel,
                     field.luma_plane_kernel,
                     field.depth_rank_kernel,
                     field.walk_steps_kernel, field.length_kernel,
@@ -1007,20 +1008,18 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0, luma0=None):
     uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N),
     longest) numpy arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and
     vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function.
-    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them).
-    luma0: field_luminance(color0) or None (computed here)."""
+    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them), which
+    each pixel takes here (the walk's sources; _block_field makes a field without the walk
+    from the blocks themselves). luma0: field_luminance(color0) or None (computed here)."""
     from fgcli.ops import fsr3 as FS
 
     from fgcli.kernels.warp import flat_ok
 
-    if sh > 0 and (sec or not flat_ok(*color1.shape[-2:], 1)):  # (per pixel then)
+    if sh > 0:  # (per pixel here: the walk's sources, or frames too large for pair loads)
         h, w = color1.shape[-2:]
         vec = FS.upsample_block_flow(vec, h, w, 1 << sh)
         hi = FS.upsample_block_flow(hi, h, w, 1 << sh)
-        sh = 0
-    if sh > 0:
-        color0, color1, _, a = FS.entries_args(color0, color1, color1[:2], alpha)
-    elif color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
+    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
             not flat_ok(*vec.shape[-2:], 1):
         vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha,
                                                           luma0)
@@ -1032,7 +1031,7 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0, luma0=None):
         return pos, keys, (h, w, a), walk
     else:
         color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
-    from fgcli.kernels.field import entries_block_kernel, entries_kernel, luma_plane_kernel
+    from fgcli.kernels.field import entries_kernel, luma_plane_kernel
 
     h, w = color1.shape[-2:]
     gxn, gyn, kx, ky = _grid(h, w)
@@ -1046,12 +1045,8 @@ def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0, luma0=None):
         luma_plane_kernel(_a(color0), l0)
     dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
     va = _a(vec)
-    if sh:
-        entries_block_kernel(l0, _a(color1), va, _a(hi).reshape(hi.shape[-2:]), sh,
-                             F32(1.0 - a), gxn, gyn, kx, ky, pos.numpy(), keys, bool(sec), dist)
-    else:
-        entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn, gyn, kx,
-                       ky, pos.numpy(), keys, bool(sec), dist)
+    entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn, gyn, kx, ky,
+                   pos.numpy(), keys, bool(sec), dist)
     walk = None
     if sec and h * w:
         from fgcli.kernels.field import walk_steps_kernel
