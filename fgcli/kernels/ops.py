@@ -471,7 +471,7 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
         interp_window_kernel(_a(color0), _a(color1), _a(vec), _a(of_vec), _a(mask_prev)[0],
                              _a(mask_cur)[0], F32(a), F32(-(1.0 - a)), F32(1.0 - a), gxn, gyn,
                              kx, ky, out.numpy(), holes.numpy()[0], bias.numpy()[0])
-        return out, holes, bias
+        return mark_scratch(out), holes, bias
     T, G = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     S = np.empty((h, w), dtype=np.float32) if has_of else _DUMMY2
     a32, na32 = F32(a), F32(-(1.0 - a))
@@ -483,7 +483,7 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
                            T, G, S, out.numpy(), bias.numpy()[0])
     else:
         bias.fill_(1.0)
-    return out, holes, bias
+    return mark_scratch(out), holes, bias
 
 
 def interpolated_depth(depth_t, vec, alpha=0.5, depth0=None, depth1=None):
@@ -549,20 +549,23 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
     return _inpaint(values, weight, holes, mode, decay, eps)
 
 
-def _inpaint(values, weight, holes, mode, decay, eps):
+def _inpaint(values, weight, holes, mode, decay, eps, in_place=False):
     """pyramid_inpaint's kernel path on checked inputs; weight None: 1 everywhere (holes
-    given)."""
+    given). in_place (values marked scratch and contiguous, holes given): the holes are
+    filled in values itself, and the given holes serve as the hole mask (no copies: 26 MB
+    written less per 1080p colour frame)."""
     from fgcli.kernels.pyramid import inpaint_prep_kernel
 
     c, h, w = values.shape
-    out = _empty(c, h, w)
-    hout = _empty(1, h, w, dtype=torch.bool)
+    inp = holes is not None and _writable(in_place, values) and holes.is_contiguous()
+    out = values if inp else _empty(c, h, w)
+    hout = holes if inp else _empty(1, h, w, dtype=torch.bool)
     lev1 = _empty(c + 1, (h + 1) // 2, (w + 1) // 2)
     nh = np.empty((h + 1) // 2, dtype=np.int64)
     ha = _u8(holes)[0] if holes is not None else _u8(hout)[0]  # (unread when not given)
     va = _a(values)
     inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
-                        holes is not None, out.numpy(), _u8(hout)[0], lev1.numpy(), nh)
+                        holes is not None, _a(out), _u8(hout)[0], lev1.numpy(), nh, not inp)
     return _inpaint_levels(out, hout, lev1, nh, mode, decay, eps)
 
 
@@ -624,9 +627,11 @@ def fill_packed_field(field):
     return _inpaint_levels(out, hout, lev1, nh, "first", 10.0, 1e-12)[0], valid
 
 
-def inpaint_color(color, holes, decay=10.0):
+def inpaint_color(color, holes, decay=10.0, in_place=False):
     """fgcli.ops.fsr3.inpaint_color with the inpainting by numba kernels (the weight
-    (~holes).float() never made: 1 everywhere, the given holes zero it)."""
+    (~holes).float() never made: 1 everywhere, the given holes zero it). in_place: the
+    caller gives color up; where it is marked scratch (interpolate_fsr3's) the holes are
+    filled in it (fgcli.ops._util)."""
     from fgcli.ops import fsr3 as FS
 
     if not (_f32cpu(color) and isinstance(holes, torch.Tensor) and holes.dim() == 3
@@ -635,7 +640,7 @@ def inpaint_color(color, holes, decay=10.0):
         return FS.inpaint_color(color, holes, decay, pool=avg_pool2, inpaint=pyramid_inpaint)
     if not (decay > 0):
         raise ValueError(f"decay: expected > 0, got {decay!r}")
-    out, _ = _inpaint(color, None, holes, "blend", decay, 1e-12)
+    out, _ = _inpaint(color, None, holes, "blend", decay, 1e-12, in_place)
     return out
 
 
@@ -710,6 +715,11 @@ _GROUPS = (
      ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"][:, :1, :1].contiguous(),
                                      torch.ones(1, 1, 1, dtype=torch.int64), 0.5, False,
                                      block=8)),
+     # (the general path's scatter and walk: frames one pixel wide)
+     ("fsr3", lambda i: vector_field(i["c"][:, :, :1].contiguous(),
+                                     i["c"][:, :, :1].contiguous(),
+                                     torch.full((2, 8, 1), 3.0),
+                                     (i["d"][:, :, :1] * 100).to(torch.int64))),
      ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
      ("gffe", lambda i: _warm_gffe(i["d"]))),
 )
@@ -782,11 +792,12 @@ def _warm_kernels(families=None) -> tuple:
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,
-                    field.entries_kernel, field.agreement_block_kernel,
-                    field.field_scatter_block_kernel,
+                    field.entries_prio_kernel, field.agreement_block_kernel,
+                    field.field_scatter_block_kernel, field.field_scatter_prio_kernel,
+                    field.field_walk_prio_kernel,
                     field.luma_plane_kernel,
                     field.depth_rank_kernel,
-                    field.walk_steps_kernel, field.length_kernel,
+                    field.length_kernel,
                     fsr3.interp_depth_kernel, fsr3.scale_mv_kernel)
     from fgcli.kernels import geom, gffe
 
@@ -1003,62 +1014,6 @@ def depth_priority(depth):
     return hi
 
 
-def _field_entries(color0, color1, vec, hi, alpha, sec=False, sh=0, luma0=None):
-    """fgcli.ops.fsr3.field_entries by the numba kernel: (pos (2, N), keys [(N,), (N,)]
-    uint32 numpy arrays, (h, w, alpha), walk): walk = (dist (N,), unit steps (2, N),
-    longest) numpy arrays when ``sec`` (the reference's _length(vf * (1 - alpha)) and
-    vf / dist.clamp(min=1e-6)), else None. Other inputs: the reference's own function.
-    sh > 0: vec and hi per block of 2**sh pixels a side (vector_field checked them), which
-    each pixel takes here (the walk's sources; _block_field makes a field without the walk
-    from the blocks themselves). luma0: field_luminance(color0) or None (computed here)."""
-    from fgcli.ops import fsr3 as FS
-
-    from fgcli.kernels.warp import flat_ok
-
-    if sh > 0:  # (per pixel here: the walk's sources, or frames too large for pair loads)
-        h, w = color1.shape[-2:]
-        vec = FS.upsample_block_flow(vec, h, w, 1 << sh)
-        hi = FS.upsample_block_flow(hi, h, w, 1 << sh)
-    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
-            not flat_ok(*vec.shape[-2:], 1):
-        vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha,
-                                                          luma0)
-        keys = [_a(k).astype(np.uint32) for k in keys]  # (entries are below 2**32)
-        walk = None
-        if sec and vf.shape[1]:
-            dt = FS._length(vf * (1.0 - a))
-            walk = (_a(dt), _a(vf / dt.clamp(min=1e-6)), float(dt.max()))
-        return pos, keys, (h, w, a), walk
-    else:
-        color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
-    from fgcli.kernels.field import entries_kernel, luma_plane_kernel
-
-    h, w = color1.shape[-2:]
-    gxn, gyn, kx, ky = _grid(h, w)
-    pos, keys = _empty(2, h, w), np.empty((2, h, w), dtype=np.uint32)
-    if luma0 is not None and tuple(luma0.shape) != (1, h, w):
-        raise ValueError(f"luma0: expected shape {(1, h, w)}, got {tuple(luma0.shape)}")
-    if luma0 is not None and _f32cpu(luma0):
-        l0 = _a(luma0)[0]
-    else:  # (a luma0 of another type or device: this frame's own, the same values)
-        l0 = np.empty((h, w), dtype=np.float32)
-        luma_plane_kernel(_a(color0), l0)
-    dist = np.empty((h, w), dtype=np.float32) if sec else l0  # (unwritten without sec)
-    va = _a(vec)
-    entries_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), F32(1.0 - a), gxn, gyn, kx, ky,
-                   pos.numpy(), keys, bool(sec), dist)
-    walk = None
-    if sec and h * w:
-        from fgcli.kernels.field import walk_steps_kernel
-
-        dt = torch.from_numpy(dist)
-        torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
-        d = np.empty((2, h, w), dtype=np.float32)
-        walk_steps_kernel(va, dist, d)
-        walk = (dist.reshape(-1), d.reshape(2, -1), float(dt.max()))
-    return pos.view(2, -1), [keys[0].reshape(-1), keys[1].reshape(-1)], (h, w, a), walk
-
-
 def sample_flow_field(field, h, w, block=8):
     """fgcli.ops.fsr3.sample_flow_field: the block field unpacked and the per-axis taps by
     the reference's own torch code (block resolution, 1-D), the per-pixel mean by the
@@ -1109,24 +1064,17 @@ def field_luminance(color):
 def _block_field(color0, color1, vec, hi, alpha, sh, thr, luma0):
     """vector_field of block vectors without the secondary walk (the optical-flow field):
     the pixels' agreement by one kernel, the entries made and scattered by another, or
-    None where _field_entries' general path serves (frames too large for pair loads)."""
+    None where the general path serves (frames too large for pair loads)."""
     from fgcli.ops import fsr3 as FS
 
-    from fgcli.kernels.field import (agreement_block_kernel, field_scatter_block_kernel,
-                                     luma_plane_kernel)
+    from fgcli.kernels.field import agreement_block_kernel, field_scatter_block_kernel
     from fgcli.kernels.warp import flat_ok
 
     h, w = color1.shape[-2:]
     if not flat_ok(h, w, 1):
         return None
     color0, color1, _, a = FS.entries_args(color0, color1, color1[:2], alpha)
-    if luma0 is not None and tuple(luma0.shape) != (1, h, w):
-        raise ValueError(f"luma0: expected shape {(1, h, w)}, got {tuple(luma0.shape)}")
-    if luma0 is not None and _f32cpu(luma0):
-        l0 = _a(luma0)[0]
-    else:  # (a luma0 of another type or device: this frame's own, the same values)
-        l0 = np.empty((h, w), dtype=np.float32)
-        luma_plane_kernel(_a(color0), l0)
+    l0 = _frame0_luma(color0, luma0, h, w)
     gxn, gyn, kx, ky = _grid(h, w)
     va = _a(vec)
     lo = np.empty((h, w), dtype=np.uint8)
@@ -1137,15 +1085,70 @@ def _block_field(color0, color1, vec, hi, alpha, sh, thr, luma0):
     return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
 
 
+def _frame0_luma(color0, luma0, h, w):
+    """vector_field's plane of frame 0's luminance: luma0 (checked) or made here."""
+    from fgcli.kernels.field import luma_plane_kernel
+
+    if luma0 is not None and tuple(luma0.shape) != (1, h, w):
+        raise ValueError(f"luma0: expected shape {(1, h, w)}, got {tuple(luma0.shape)}")
+    if luma0 is not None and _f32cpu(luma0):
+        return _a(luma0)[0]
+    l0 = np.empty((h, w), dtype=np.float32)  # (a luma0 of another type or device: this
+    luma_plane_kernel(_a(color0), l0)        # frame's own, the same values)
+    return l0
+
+
+def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, luma0):
+    """vector_field of per-pixel vectors (the game field): each pixel's priority (and the
+    walk's lengths) by one kernel, the primary scatter and the secondary walk by kernels
+    that make the positions, entries and steps from the vectors and priorities as they go
+    (no frame-sized positions, entries and steps: 41 MB written and read back at 1080p);
+    or None where the general path serves (vector_field)."""
+    from fgcli.ops import fsr3 as FS
+
+    from fgcli.kernels.field import (entries_prio_kernel, field_merge_kernel,
+                                     field_scatter_prio_kernel, field_walk_prio_kernel)
+    from fgcli.kernels.warp import flat_ok
+
+    if color0.shape[0] != 3 or hi.dtype != torch.int64 or hi.numel() != vec[0].numel() or \
+            not flat_ok(*vec.shape[-2:], 1):
+        return None
+    color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
+    h, w = color1.shape[-2:]
+    l0 = _frame0_luma(color0, luma0, h, w)
+    gxn, gyn, kx, ky = _grid(h, w)
+    va = _a(vec)
+    a1 = F32(1.0 - a)
+    prio = np.empty((h, w), dtype=np.uint16)
+    dist = np.empty((h, w), dtype=np.float32) if walk_on else l0  # (unwritten without)
+    entries_prio_kernel(l0, _a(color1), va, _a(hi).reshape(h, w), a1, gxn, gyn, kx, ky, prio,
+                        bool(walk_on), dist)
+    padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
+    buf = [padded[0].reshape(-1), padded[1].reshape(-1)]
+    field_scatter_prio_kernel(va, prio, a1, F32(thr), buf[0], buf[1])
+    if walk_on and h * w:
+        dt = torch.from_numpy(dist)
+        torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
+        steps = int(min(max_secondary, np.floor(float(dt.max()))))
+        if steps >= 1:
+            n = (h + 2) * (w + 2)
+            sec = [np.empty(n, dtype=np.uint32) for _ in range(2)]  # (zeroed by the kernel)
+            field_walk_prio_kernel(va, prio, dist, a1, steps, buf[0], buf[1], *sec)
+            field_merge_kernel(buf[0], buf[1], *sec)
+    return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
+
+
 def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_secondary=64,
                  tap_threshold=0.05, length_bound=None, block=1, luma0=None):
-    """fgcli.ops.fsr3.vector_field: the entries (and the secondary walk's lengths and
-    steps) by one numba kernel, the scatter (primary footprints and the secondary walk) by
-    another. The field is uint32 (2, H, W), the reference's entries (all below 2**32) in
-    half the bytes; unpack_vector_field reads either. block (a power of two): the entries
-    kernel reads each pixel's block's vector and priority itself (the upsampled copies,
-    (2, H, W) float32 and (1, H, W) int64, cost ~3 ms per 1080p frame). luma0:
-    field_luminance(color0), when the caller has it (~1 ms per 1080p field)."""
+    """fgcli.ops.fsr3.vector_field: the pixels' priorities (and the secondary walk's
+    lengths) by one numba kernel, the scatter (primary footprints, then the secondary
+    walk) by others, which make the positions and entries as they go (_pixel_field; block
+    vectors without the walk: _block_field). The field is uint32 (2, H, W), the
+    reference's entries (all below 2**32) in half the bytes; unpack_vector_field reads
+    either. block (a power of two, no walk): the kernels read each pixel's block's vector
+    and priority themselves (the upsampled copies, (2, H, W) float32 and (1, H, W) int64,
+    cost ~3 ms per 1080p frame). luma0: field_luminance(color0), when the caller has it
+    (~1 ms per 1080p field)."""
     from fgcli.ops import fsr3 as FS
 
     sh = 0
@@ -1165,32 +1168,37 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
             (color1.shape[-2] + 2) * (color1.shape[-1] + 2) >= 2 ** 31:  # (int32 indices)
         return FS.vector_field(color0, color1, vec, hi, alpha, secondary, max_secondary,
                                tap_threshold, length_bound, luma0=luma0)
-    from fgcli.kernels.field import field_scatter_kernel
-
     walk_on = secondary and max_secondary > 0
     if sh > 0 and not walk_on:
         r = _block_field(color0, color1, vec, hi, alpha, sh, tap_threshold, luma0)
         if r is not None:
             return r
-    pos, keys, (h, w, a), walk = _field_entries(color0, color1, vec, hi, alpha, walk_on, sh,
-                                                luma0)
-    n = (h + 2) * (w + 2)
+    if sh > 0:  # per pixel: the walk's sources, or frames too large for pair loads
+        h, w = color1.shape[-2:]
+        vec = FS.upsample_block_flow(vec, h, w, block)
+        hi = FS.upsample_block_flow(hi, h, w, block)
+    r = _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, tap_threshold,
+                     luma0)
+    if r is not None:
+        return r
+    # other inputs (frames too large for pair loads, priorities of another type): the
+    # reference's own entries, scattered by the kernels
+    from fgcli.kernels.field import field_merge_kernel, field_scatter_kernel, field_walk_kernel
+
+    vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha, luma0)
+    k0, k1 = [_a(k).astype(np.uint32) for k in keys]  # (entries are below 2**32)
     padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
     buf = [padded[0].reshape(-1), padded[1].reshape(-1)]
-    steps = 0
-    dist = d = np.zeros((2, 1), dtype=np.float32)
-    if walk is not None:
-        steps = int(min(max_secondary, np.floor(walk[2])))
-        if steps >= 1:
-            dist, d = walk[0], walk[1]
-    pa, (k0, k1) = _a(pos), keys
+    pa = _a(pos)
     field_scatter_kernel(pa, k0, k1, h, w, F32(tap_threshold), buf[0], buf[1])
-    if steps >= 1:
-        from fgcli.kernels.field import field_merge_kernel, field_walk_kernel
-
-        sec = [np.empty(n, dtype=np.uint32) for _ in range(2)]  # (zeroed by the kernel)
-        field_walk_kernel(pa, k0, k1, dist.reshape(-1), d, h, w, steps, buf[0], buf[1], *sec)
-        field_merge_kernel(buf[0], buf[1], *sec)
+    if walk_on and vf.shape[1]:
+        dt = FS._length(vf * (1.0 - a))
+        steps = int(min(max_secondary, np.floor(float(dt.max()))))
+        if steps >= 1:
+            sec = [np.empty((h + 2) * (w + 2), dtype=np.uint32) for _ in range(2)]
+            field_walk_kernel(pa, k0, k1, _a(dt), _a(vf / dt.clamp(min=1e-6)), h, w, steps,
+                              buf[0], buf[1], *sec)  # (sec: zeroed by the kernel)
+            field_merge_kernel(buf[0], buf[1], *sec)
     # the interior of the padded buffers, as a view (unpack_vector_field reads it in place;
     # the stacked copy cost 1.4 ms per 1080p field); uint32, not the reference's int64:
     # the entries are below 2**32, and half the bytes made the scatter ~30 % faster

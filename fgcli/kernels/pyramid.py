@@ -74,14 +74,16 @@ def _pool_rows(pr, nr, w, lev1, k, q):
 
 
 @njit(**KERNEL)
-def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh):
+def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh, copy):
     """fgcli.ops.pyramid.pyramid_inpaint's dense part in one pass, level 0 never stored:
     out (C, H, W) = sanitize_values(values); the weight cleaned (NaN, +-inf and negatives
     -> 0); hout (H, W) uint8 = holes (given) or cleaned weight <= 0; lev1 (C + 1, h2, w2)
     = pool2_kernel of level 0 = [v * w, w] with w the cleaned weight, 0 at holes (the
     same sums in the same order); nh (h2,) the holes of each pair of rows. unit: a weight
     of 1 everywhere (weight is then read, not used; given holes make it the reference's
-    (~holes).float())."""
+    (~holes).float()). copy False: out is values itself (in place), and only a row with a
+    value sanitising changes is written; hout may then be the given holes themselves (it
+    is written only where they are not given)."""
     c, h, w = values.shape
     h2 = lev1.shape[1]
     for pq in prange(h2):
@@ -97,19 +99,29 @@ def inpaint_prep_kernel(values, weight, unit, holes, given, out, hout, lev1, nh)
                 v = F32(1.0) if unit else weight[y, x]
                 v = F32(0.0) if (v != v) | (v == INF) | (v < F32(0.0)) else v
                 hl = (holes[y, x] != U0) if given else (v <= F32(0.0))
-                hout[y, x] = U1 if hl else U0
+                if copy or not given:
+                    hout[y, x] = U1 if hl else U0
                 wr[r, x] = F32(0.0) if hl else v
-            for x in range(w):
-                n += np.int64(hout[y, x])
+                n += np.int64(hl)
         nh[q] = n
         for k in range(c + 1):
             for r in range(nr):
                 y = y0 + r
-                if k < c:
+                if k < c and copy:
                     for x in range(w):
                         sv = sval_b(values[k, y, x])
                         out[k, y, x] = sv
                         pr[r, x] = sv * wr[r, x]
+                elif k < c:
+                    changed = 0
+                    for x in range(w):
+                        v = values[k, y, x]
+                        sv = sval_b(v)
+                        changed += np.int64(sv != v)
+                        pr[r, x] = sv * wr[r, x]
+                    if changed:
+                        for x in range(w):
+                            out[k, y, x] = sval_b(values[k, y, x])
                 else:
                     for x in range(w):
                         pr[r, x] = wr[r, x]

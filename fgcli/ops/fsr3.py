@@ -964,10 +964,12 @@ def interpolated_depth(depth_t: torch.Tensor, vec: torch.Tensor, alpha: float = 
 
 
 def inpaint_color(color: torch.Tensor, holes: torch.Tensor, decay: float = 10.0, pool=None,
-                  inpaint=None):
+                  inpaint=None, in_place: bool = False):
     """FSR 3 colour inpainting: hole pixels take pyramid_inpaint mode 'blend' of the valid
     interpolated colour (level weights (1 - i/10)^3). (3, H, W), (1, H, W) bool -> (3, H, W).
-    inpaint: pyramid_inpaint or a function with its signature (the numba backend's)."""
+    inpaint: pyramid_inpaint or a function with its signature (the numba backend's).
+    in_place: the caller gives color up (the numba backend may fill the holes in it; a new
+    tensor here always)."""
     out, _ = (inpaint or pyramid_inpaint)(color, (~holes).to(torch.float32), holes,
                                           mode="blend", decay=decay, pool=pool)
     return out
