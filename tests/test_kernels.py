@@ -22,6 +22,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 
@@ -889,6 +890,38 @@ def test_fsr3_scatters(h, w):
                 same("depth (short vectors)", k, r)
             for k, r in zip(K.reconstruct_depths(d, vs, a), fsr3.reconstruct_depths(d, vs, a)):
                 same("depth (short vectors)", k, r)
+
+
+def test_sqrt_threshold(monkeypatch):
+    """The depth reconstruction's short-vector test without square roots: x >= T gives
+    torch.sqrt(x) >= short for every float32 x within 3000 values of T (both ways; beyond
+    that the square root's error of an ulp or two cannot reach), for shorts from 1e-30
+    (square underflowing: no threshold, or one that holds) up; 0 and negatives let every
+    vector pass, NaN and inf none; without a threshold the kernel takes the square roots
+    and gives the reference's depths too."""
+    from fgcli.ops import fsr3
+
+    for s in (0.1, 1.0, 0.3, 1e-3, 7.5, 9.99, 1e-19, 1e-30):
+        t = K._sqrt_at_least(s)
+        if t is None:
+            assert s < 1e-18
+            continue
+        c = int(np.float32(t).view(np.int32))
+        x = torch.from_numpy(np.arange(max(c - 3000, 0), c + 3000, dtype=np.int32)
+                             .view(np.float32))
+        assert torch.equal(torch.sqrt(x) >= s, x >= float(t)), s
+        assert bool(torch.sqrt(torch.tensor(float(t))) >= s)
+    assert K._sqrt_at_least(0.1) is not None
+    assert K._sqrt_at_least(0.0) == 0.0 and K._sqrt_at_least(-1.0) == 0.0
+    assert K._sqrt_at_least(float("nan")) == np.inf and K._sqrt_at_least(np.inf) == np.inf
+    c0, c1, v, d = _fsr3_inputs(37, 53, 5)
+    v[:, ::3] *= 0.02  # (many vectors near 0.1 px)
+    want = fsr3.reconstruct_depths(d, v, 0.5)
+    for kr, r in zip(K.reconstruct_depths(d, v, 0.5), want):
+        same("depth (threshold)", kr, r)
+    monkeypatch.setattr(K, "_sqrt_at_least", lambda s: None)
+    for kr, r in zip(K.reconstruct_depths(d, v, 0.5), want):
+        same("depth (square roots)", kr, r)
 
 
 def test_fsr3_field_scatter_runs():

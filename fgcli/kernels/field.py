@@ -214,13 +214,15 @@ def field_merge_kernel(buf0, buf1, sb0, sb1):
 
 
 @njit(**KERNEL)
-def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
+def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
     """reconstruct_depths' two scatters with the sources computed in the kernel (the
     reference's depth_sources: sanitised depth, sanitised vector zeroed when its length
-    (lens (H, W): torch.sqrt of length_kernel's squares, MKL's as the reference's) is
-    shorter than ``short``, position p + v * ks[t], each product and sum rounded on its
+    is shorter than ``short``, position p + v * ks[t], each product and sum rounded on its
     own): depth (H, W), mv (2, H, W), ks (2,) float32 -> out (2, H, W) float32 (set to
-    +inf here), the minimum depth written into each texel's footprint taps.
+    +inf here), the minimum depth written into each texel's footprint taps. The length
+    test: ``squared``: the squared length (length_kernel's sum) >= short, a threshold
+    that gives torch.sqrt's answer (fgcli.kernels.ops._sqrt_at_least); else lens (H, W)
+    (torch.sqrt of length_kernel's squares, MKL's as the reference's) >= short.
 
     No off-screen ring (the reference's discard texels): an off-screen tap writes +inf
     into an on-screen texel (its coordinates clamped), which changes nothing, so the
@@ -252,15 +254,24 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, ks, thr, out):
         z2 = np.empty(w, dtype=np.float32)
         z3 = np.empty(w, dtype=np.float32)
         brk = np.empty(w, dtype=np.int64)
+        kp = np.empty(w, dtype=np.float32)
         for y in range(h):
             yf = F32(y)
             dr = depth[y]
             mx = mv[0, y]
             my = mv[1, y]
+            if squared:
+                for x in range(w):
+                    vx = smv_b(mx[x])
+                    vy = smv_b(my[x])
+                    kp[x] = F32(1.0) if vx * vx + vy * vy >= short else F32(0.0)
+            else:
+                for x in range(w):
+                    kp[x] = F32(1.0) if lens[y, x] >= short else F32(0.0)
             for x in range(w):
                 vx = smv_b(mx[x])
                 vy = smv_b(my[x])
-                keep = F32(1.0) if lens[y, x] >= short else F32(0.0)
+                keep = kp[x]
                 px = F32(x) + (vx * keep) * k
                 py = yf + (vy * keep) * k
                 xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px, py, h, w, thr)

@@ -797,7 +797,6 @@ def _warm_kernels(families=None) -> tuple:
                     field.field_walk_prio_kernel,
                     field.luma_plane_kernel,
                     field.depth_rank_kernel,
-                    field.length_kernel,
                     fsr3.interp_depth_kernel, fsr3.scale_mv_kernel)
     from fgcli.kernels import geom, gffe
 
@@ -1205,9 +1204,40 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
     return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
 
 
+_BAND = 1 << 16  # float32 values each side of short**2 that _sqrt_at_least checks
+
+
+@functools.lru_cache(maxsize=16)
+def _sqrt_at_least(short: float):
+    """The least float32 x with ``torch.sqrt(x) >= short`` (the reference's test of a
+    vector's length, _length(v) >= short_mv), so that a kernel decides it on the squared
+    length alone as ``x >= T``, without the square root (MKL's vsSqrt on the CPU: not
+    correctly rounded, so neither IEEE sqrt nor x >= short**2 would always agree).
+
+    Found with torch.sqrt itself on the 2 * _BAND float32 values around short**2: T is
+    returned only when the test is false below T and true from T on within that band
+    (monotone: far outside it no sqrt error of a few ulps could change the answer);
+    else None (the caller takes the square roots). short <= 0: 0.0 (every length passes);
+    NaN or inf: inf (none does)."""
+    s = float(short)
+    if s != s or s == float("inf"):
+        return np.float32(np.inf)
+    if s <= 0.0:
+        return np.float32(0.0)
+    c = int(np.float32(s * s).view(np.int32))
+    lo, hi = max(c - _BAND, 0), min(c + _BAND, 0x7F800000)
+    x = torch.from_numpy(np.arange(lo, hi, dtype=np.int32).view(np.float32))
+    ok = (torch.sqrt(x) >= s).numpy()
+    first = int(np.argmax(ok))
+    if not ok[-1] or (first == 0 and lo > 0) or not ok[first:].all() or ok[:first].any():
+        return None
+    return x[first].numpy().astype(np.float32)[()]
+
+
 def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
     """fgcli.ops.fsr3.reconstruct_depths: the sources and both footprint scatters in one
-    numba kernel."""
+    numba kernel. The short-vector test runs on the squared lengths against
+    _sqrt_at_least's threshold (no length plane, no square roots: ~2 ms per 1080p frame)."""
     from fgcli.ops import fsr3 as FS
 
     if not (_cpu(depth, mv) and depth.dtype == torch.float32 and mv.dtype == torch.float32
@@ -1220,14 +1250,19 @@ def reconstruct_depths(depth, mv, alpha=0.5, short_mv=0.1, tap_threshold=0.05):
     h, w = depth.shape[-2:]
     out = _empty(2, h, w)  # (set to +inf by the kernel)
     ks = np.array([1.0, 1.0 - a], dtype=np.float32)  # torch rounds the scalars so
-    from fgcli.kernels.field import length_kernel
-
     ma = _a(mv)
-    lens = np.empty((h, w), dtype=np.float32)
-    length_kernel(ma, lens)
-    torch.sqrt(torch.from_numpy(lens), out=torch.from_numpy(lens))  # (MKL's, as _length)
-    depth_scatter_pair_kernel(_a(depth)[0], ma, lens, F32(short_mv), ks, F32(tap_threshold),
-                              out.numpy())
+    t = _sqrt_at_least(short_mv)
+    if t is None:  # (never seen: the lengths themselves, as the reference takes them)
+        from fgcli.kernels.field import length_kernel
+
+        lens = np.empty((h, w), dtype=np.float32)
+        length_kernel(ma, lens)
+        torch.sqrt(torch.from_numpy(lens), out=torch.from_numpy(lens))  # (MKL's, as _length)
+        depth_scatter_pair_kernel(_a(depth)[0], ma, lens, F32(short_mv), False, ks,
+                                  F32(tap_threshold), out.numpy())
+    else:
+        depth_scatter_pair_kernel(_a(depth)[0], ma, _DUMMY2, t, True, ks, F32(tap_threshold),
+                                  out.numpy())
     return out[0:1], out[1:2]
 
 
