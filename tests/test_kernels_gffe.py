@@ -637,7 +637,8 @@ def test_track_history_matches_the_reference(h, w):
 
 def test_median_depth_matches_the_reference():
     """The window's median (an exact selection on the float32 bits) vs torch.nanmedian:
-    no finite positive value (NaN), ties, even and odd counts, extreme values."""
+    no finite positive value (NaN), ties, even and odd counts, extreme values, smooth
+    depth maps (the second pass's block skipping)."""
     rng = np.random.default_rng(0)
     cases = [torch.tensor([[[NAN]]]), torch.full((1, 3, 4), INF), torch.zeros(1, 2, 2),
              torch.tensor([[[2.0, 1.0]]]), torch.tensor([[[1e-45, 3e38, 5.0, 5.0]]])]
@@ -646,6 +647,15 @@ def test_median_depth_matches_the_reference():
         for s in (50.0, 1e-3, 1e30):
             cases.append(hard_depth(h, w, rng, s))
         cases.append((torch.rand(1, h, w, generator=g) * 4).round())
+    # smooth depths (most blocks of 1024 pixels cannot hold the median's top bits: the
+    # second pass skips them), with sky rows, a NaN and a spike
+    y, x = torch.meshgrid(torch.arange(120.0), torch.arange(300.0), indexing="ij")
+    for z in (1.0 + y * 0.05 + x * 1e-4, 100.0 - y * 0.7, 2.0 ** (y / 8.0)):
+        z = z[None].clone()
+        z[:, :17] = INF
+        z[0, 60, 5] = NAN
+        z[0, 90, 200] = 1e30
+        cases += [z, z[:, :, :150].contiguous(), z.flip(-1).contiguous()]
     for i, c in enumerate(cases):
         a, b = K.median_depth(c), G.median_depth(c)
         assert (math.isnan(a) and math.isnan(b)) or a == b, (i, a, b)

@@ -1962,14 +1962,15 @@ def median_depth(depth):
     from fgcli.kernels.gffe import bits_hist, bits_rank
 
     d = _a(depth).reshape(-1)
-    cum = np.cumsum(bits_hist(d))
+    hist, bounds = bits_hist(d)
+    cum = np.cumsum(hist)
     n = int(cum[-1])
     if n == 0:
         return float("nan")
     r = (n - 1) // 2
     top = int(np.searchsorted(cum, r, side="right"))
     rank = r - (int(cum[top - 1]) if top > 0 else 0)
-    return float(np.int32(bits_rank(d, top, rank)).view(np.float32))
+    return float(np.int32(bits_rank(d, top, rank, bounds)).view(np.float32))
 
 
 PP_TILE_K = 5  # push_pull_fill's tiles: 32 x 32 pixels
