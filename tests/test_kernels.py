@@ -569,7 +569,7 @@ def _warp_window_cases(h, w, seed):
 
 
 def test_warp_window_fetches_equal_the_gathers():
-    """AVX-512: the mob-fgsr warp fetching its taps 16 pixels at a time from windows of
+    """AVX-512 / AVX2: the mob-fgsr warp fetching its taps 16 pixels at a time from windows of
     source rows (fgcli.kernels._intrin.bilinear16x3, nearest16) gives the per-pixel
     gathering kernel's values bit for bit (and so the reference's): widths that are and
     are not a multiple of 16, narrower than the 32-column window, one and two rows; colour
@@ -578,12 +578,12 @@ def test_warp_window_fetches_equal_the_gathers():
     resolve's reads at the winners (fetch16x2) against the reference on the same frames."""
     import numpy as np
 
-    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels._intrin import HAVE_WINDOW16
     from fgcli.kernels.ops import _grid
     from fgcli.kernels.warp import warp_pixels_kernel, warp_window_kernel
 
-    if not HAVE_AVX512:
-        pytest.skip("no AVX-512 (the gathering kernel runs instead)")
+    if not HAVE_WINDOW16:
+        pytest.skip("no AVX-512 or AVX2 (the gathering kernel runs instead)")
     for h, w in ((45, 96), (37, 53), (9, 40), (20, 17), (2, 70), (1, 33), (30, 31)):
         f = random_frames(h, w, h * w)
         f["c1"][0, ::5, ::3] = NAN
@@ -624,11 +624,11 @@ def test_warp_window_fetches_equal_the_gathers():
                                             ("wide 37x53 fast", random_frames(37, 53, 12, 30.0))],
                          ids=IDS + ["wide 45x96", "wide 37x53 fast"])
 def test_warp_blend_fused_equals_the_two_stages(name, f):
-    """mob-fgsr's warp and blend in one pass (fgcli.kernels.ops.warp_blend, AVX-512) give
+    """mob-fgsr's warp and blend in one pass (fgcli.kernels.ops.warp_blend, AVX-512 / AVX2) give
     the two stages' colour and depth bit for bit: every hard case, alpha inside and at both
     ends, with and without the target depth and the static cross-fade; elsewhere it
     declines (None) and the stages run one after the other."""
-    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels._intrin import HAVE_WINDOW16
     from fgcli.kernels.warp import flat_ok
 
     dd, mm = R.dilate_nearest_depth(f["d1"], f["mv1"])
@@ -639,7 +639,7 @@ def test_warp_blend_fused_equals_the_two_stages(name, f):
             for st in (None, r):
                 args = (f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0, dt, a, 0.02, 0.13, st)
                 got = K.warp_blend(*args)
-                if not HAVE_AVX512 or not flat_ok(*f["d1"].shape[-2:], 3):
+                if not HAVE_WINDOW16 or not flat_ok(*f["d1"].shape[-2:], 3):
                     assert got is None
                     continue
                 same_result(f"warp+blend a={a}", got, RF.warp_blend(*args))
@@ -650,7 +650,7 @@ def test_mob_fgsr_runs_warp_and_blend_fused():
     """With the kernels the mob-fgsr interpolation times its warp and blend as one pass
     ("warp+blend") where the fused kernel applies, and the frame equals the torch run."""
     from fgcli import pipeline as pl
-    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels._intrin import HAVE_WINDOW16
     from fgcli.pipeline import Timings, run_stages
     from fgcli.runner import make_ctx
     from fgcli.synth import load_scene, render
@@ -665,7 +665,7 @@ def test_mob_fgsr_runs_warp_and_blend_fused():
         with torch.inference_mode():
             outs[backend] = run_stages(pl.load("mob-fgsr").build("interp"), ctx, tm)
         fused = "warp+blend" in tm.stages
-        assert fused == (backend == "numba" and HAVE_AVX512), tm.stages
+        assert fused == (backend == "numba" and HAVE_WINDOW16), tm.stages
         assert ("warp" in tm.stages) == (not fused)
     for k in ("color", "depth", "mv"):
         same(k, outs["numba"][k], outs["torch"][k])
@@ -676,15 +676,16 @@ def test_window_fetch_intrinsics():
     per-lane loop of the scalar helpers: random taps (gathered), taps within 32 columns of
     two and three rows (windows), the last column and row, NaN / +-inf / huge values
     (sanitised only in the planes that have them), zero-flow lanes; the returned fetch
-    path covers all three."""
+    path covers all three. (AVX2 reads each half of 8 lanes from 16 columns: the spread
+    varies so that both fetches see windows and gathers.)"""
     import numpy as np
     from numba import njit
 
     from fgcli.kernels._common import INF as KINF, sval_b
-    from fgcli.kernels._intrin import HAVE_AVX512, fma
+    from fgcli.kernels._intrin import HAVE_WINDOW16, fma
 
-    if not HAVE_AVX512:
-        pytest.skip("no AVX-512")
+    if not HAVE_WINDOW16:
+        pytest.skip("no AVX-512 or AVX2")
     from fgcli.kernels._intrin import bilinear16x1, bilinear16x3, nearest16, taps16
 
     @njit
@@ -736,8 +737,9 @@ def test_window_fetch_intrinsics():
         kind = trial % 4
         if kind == 0:  # anywhere: gathered
             xa, ya = rng.integers(0, w, n), rng.integers(0, h, n)
-        else:  # within ~28 columns of 1, 2 or 3 rows
-            xa = np.clip(rng.integers(0, w) + rng.integers(-4, 24, n), 0, w - 1)
+        else:  # within ~28 (or ~12) columns of 1, 2 or 3 rows
+            spread = 24 if trial % 2 else 8
+            xa = np.clip(rng.integers(0, w) + rng.integers(-4, spread, n), 0, w - 1)
             ya = np.clip(rng.integers(0, h) + rng.integers(0, kind, n), 0, h - 1)
         xb, yb = np.minimum(xa + 1, w - 1), np.minimum(ya + 1, h - 1)
         XA, XB, YA, YB = (a.astype(np.int32) for a in (xa, xb, ya, yb))

@@ -2,8 +2,9 @@
 kernels use FMA for ``add(alpha=)``, ``lerp`` and friends, so the kernels must too to stay
 bit-identical), an atomic signed int64 minimum (the nearest-depth-wins splat), 32-bit
 indexed loads for the gathers (``mad32``, ``ld32``, ``ld_pair``), SSE4.1's mpsadbw
-(the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps' 16-lane tap fetches from
-windows of source rows (``bilinear16x3``, ``nearest16``: AVX-512)."""
+(the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps'
+16-lane tap fetches from windows of source rows (``bilinear16x3``, ``nearest16``, ...:
+AVX-512 or AVX2)."""
 from __future__ import annotations
 
 import sys
@@ -180,6 +181,11 @@ HAVE_MPSADBW = "+sse4.1" in _FEATURES
 HAVE_AVX2 = HAVE_MPSADBW and "+avx2" in _FEATURES
 # AVX-512 (Intel since Skylake-X, AMD since Zen 4): the 16-lane window fetches below
 HAVE_AVX512 = "+avx512f" in _FEATURES
+# the window fetches run with AVX-512 (one two-register permute per tap and row) or AVX2
+# (the 16 lanes as two halves of 8, each from its own 16-column window: two one-register
+# permutes and a select per tap and row); a module constant of the kernels (numba's cache
+# keys compiled code by CPU)
+HAVE_WINDOW16 = HAVE_AVX512 or HAVE_AVX2
 
 
 def _sad_search_typing(win, cur, order):
@@ -344,6 +350,140 @@ def _splat(builder, s):
 
 
 def _fetch16(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
+    """_fetch16_512 with AVX-512, else _fetch16_avx2 (the same values, the same paths)."""
+    f = _fetch16_512 if HAVE_AVX512 else _fetch16_avx2
+    return f(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps)
+
+
+def _fetch16_avx2(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
+    """_fetch16_512 with AVX2: each half of 8 lanes reads its own window of 16 columns
+    (cx_k .. cx_k + 15: two 8-float loads per source row; one permute of each (vpermps)
+    and a select per tap and row), the rows as there (2 or 3 from the 16 lanes' least);
+    a block where either half's taps spread past 16 columns, or the rows past 3, is
+    gathered (two 8-lane vgatherdps per tap). Same arguments and results."""
+    i32, v16i, v16f = _v16(builder)
+    v8i, v8f = ir.VectorType(i32, 8), ir.VectorType(ir.FloatType(), 8)
+    c32 = lambda v: ir.Constant(i32, v)  # noqa: E731
+    smin = _fn(builder, "llvm.vector.reduce.smin.v16i32", i32, [v16i])
+    smax = _fn(builder, "llvm.vector.reduce.smax.v16i32", i32, [v16i])
+    smin8 = _fn(builder, "llvm.vector.reduce.smin.v8i32", i32, [v8i])
+    smax8 = _fn(builder, "llvm.vector.reduce.smax.v8i32", i32, [v8i])
+    perm = _fn(builder, "llvm.x86.avx2.permps", v8f, [v8f, v8i])
+    gat = _fn(builder, "llvm.x86.avx2.gather.d.ps.256", v8f,
+              [v8f, ir.IntType(8).as_pointer(), v8i, v8f, ir.IntType(8)])
+
+    def half(v, k):
+        return builder.shuffle_vector(v, v, ir.Constant(v8i, list(range(8 * k, 8 * k + 8))))
+
+    def join(a, b):
+        return builder.shuffle_vector(a, b, ir.Constant(v16i, list(range(16))))
+
+    def splat8(x):
+        u = builder.insert_element(ir.Constant(v8i, None), x, c32(0))
+        return builder.shuffle_vector(u, u, ir.Constant(v8i, [0] * 8))
+
+    xah, xbh, yah, ybh = ([half(v, k) for k in (0, 1)] for v in (xa, xb, ya, yb))
+    ymin = builder.call(smin, [ya])
+    span = builder.sub(builder.call(smax, [yb]), ymin)
+    # each half's window: columns cx_k .. cx_k + 15 (inside the row: w >= 16)
+    wm16 = builder.sub(w, c32(16))
+    cxs, xok = [], builder.icmp_signed(">=", w, c32(16))
+    for k in (0, 1):
+        xmin = builder.call(smin8, [xah[k]])
+        cx = builder.select(builder.icmp_signed("<", xmin, wm16), xmin, wm16)
+        cxs.append(cx)
+        xok = builder.and_(xok, builder.icmp_signed(
+            "<=", builder.sub(builder.call(smax8, [xbh[k]]), cx), c32(15)))
+    fn = builder.function
+    b2, bchk, b3, bg, bend = (fn.append_basic_block(n) for n in
+                              ("w8_rows2", "w8_chk3", "w8_rows3", "w8_gather", "w8_end"))
+    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(1))), b2, bchk)
+    builder.position_at_end(bchk)
+    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(2))), b3, bg)
+    taps = {}
+    zero, one, seven = (ir.Constant(v8i, [v] * 8) for v in (0, 1, 7))
+
+    def window(nrows, blk):
+        builder.position_at_end(blk)
+        vym = splat8(ymin)
+        hm1 = builder.sub(h, c32(1))
+        rowy = []
+        for r in range(nrows):  # (a row past the last is never picked: read the last)
+            y = builder.add(ymin, c32(r))
+            rowy.append(builder.mul(builder.select(builder.icmp_signed("<", y, hm1), y, hm1), w))
+        lanes = []  # per half: (index, upper-register flag) of xa and xb, the row flags
+        for k in (0, 1):
+            vcx = splat8(cxs[k])
+            ix = []
+            for xv in (xah[k], xbh[k]):
+                i = builder.sub(xv, vcx)
+                ix.append((builder.and_(i, seven), builder.icmp_signed(">", i, seven)))
+            rows_of = []
+            for yv in (yah[k], ybh[k]):
+                dy = builder.sub(yv, vym)
+                rows_of.append((builder.icmp_signed("==", dy, zero),
+                                builder.icmp_signed("==", dy, one)))
+            lanes.append((ix, rows_of))
+        out = []
+        for po in plane_offs:
+            res = [[None, None] for _ in range(4)]
+            for k in (0, 1):
+                ix, rows_of = lanes[k]
+                rows = []
+                for ry in rowy:
+                    q = builder.add(po, builder.add(ry, cxs[k]))
+                    rows.append((_vload(builder, base, q, v8f),
+                                 _vload(builder, base, builder.add(q, c32(8)), v8f)))
+
+                def pick(sel, t):
+                    i, up = t
+                    v = [builder.select(up, builder.call(perm, [hi, i]),
+                                        builder.call(perm, [lo, i])) for lo, hi in rows]
+                    r = v[1] if nrows == 2 else builder.select(sel[1], v[1], v[2])
+                    return builder.select(sel[0], v[0], r)
+
+                for n, (sel, t) in enumerate(((rows_of[0], ix[0]), (rows_of[0], ix[1]),
+                                              (rows_of[1], ix[0]), (rows_of[1], ix[1]))[:ntaps]):
+                    res[n][k] = pick(sel, t)
+            out.append([join(*res[n]) for n in range(ntaps)])
+        taps[blk] = out
+        builder.branch(bend)
+
+    window(2, b2)
+    window(3, b3)
+    builder.position_at_end(bg)
+    b8 = builder.bitcast(base, ir.IntType(8).as_pointer())
+    vw = splat8(w)
+    every = builder.bitcast(ir.Constant(v8i, [-1] * 8), v8f)
+    out = []
+    for po in plane_offs:
+        vo = splat8(po)
+        row = []
+        for yv, xv in ((yah, xah), (yah, xbh), (ybh, xah), (ybh, xbh))[:ntaps]:
+            g = [builder.call(gat, [ir.Constant(v8f, None), b8, builder.add(
+                vo, builder.add(builder.mul(yv[k], vw), xv[k])), every,
+                ir.Constant(ir.IntType(8), 4)]) for k in (0, 1)]
+            row.append(join(*g))
+        out.append(row)
+    taps[bg] = out
+    builder.branch(bend)
+    builder.position_at_end(bend)
+    merged = []
+    for p in range(len(plane_offs)):
+        row = []
+        for k in range(ntaps):
+            phi = builder.phi(v16f)
+            for blk in (b2, b3, bg):
+                phi.add_incoming(taps[blk][p][k], blk)
+            row.append(phi)
+        merged.append(row)
+    path = builder.phi(i32)
+    for blk, n in ((b2, 2), (b3, 3), (bg, 0)):
+        path.add_incoming(c32(n), blk)
+    return merged, path
+
+
+def _fetch16_512(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
     """Emit the fetch of 16 lanes' taps (xa, ya), (xb, ya), (xa, yb), (xb, yb) (int32
     vectors: 0 <= xa <= xb < w, 0 <= ya <= yb < h) from each plane (flat float32 ``base``
     at the int32 offsets ``plane_offs``, rows of w). Returns ([[nw, ne, sw, se] per

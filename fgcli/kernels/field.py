@@ -12,14 +12,14 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
-from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x1, fmin16, ld32, mad32, umax16
+from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x1, fmin16, ld32, mad32, umax16
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
 _PRIMARY = np.uint32(1 << 31)
 # the entries' bilinear luminance taps (_row_samples): 16 pixels per window fetch where the
 # CPU has AVX-512 (fgcli.kernels._intrin; a module constant: numba's cache keys code by CPU)
-WINDOW16 = HAVE_AVX512
+WINDOW16 = HAVE_WINDOW16
 
 
 @njit(**INLINE)

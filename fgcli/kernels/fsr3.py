@@ -23,12 +23,12 @@ from numba import njit, prange
 from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
-from fgcli.kernels._intrin import HAVE_AVX512, bilinear16x3, ld_pair, mad32, taps16
+from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x3, ld_pair, mad32, taps16
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32, bil_taps
 
 # the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
 # AVX-512; a module constant, so numba compiles only the branch this CPU runs)
-WINDOW16 = HAVE_AVX512
+WINDOW16 = HAVE_WINDOW16
 
 
 @njit(**INLINE)

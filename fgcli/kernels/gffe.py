@@ -18,12 +18,12 @@ from numba import njit, prange
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
-from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, bilinear16x3, mad32
+from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
 # the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
 # AVX-512; a module constant, so numba compiles only the branch this CPU runs)
-WINDOW16 = HAVE_AVX512
+WINDOW16 = HAVE_WINDOW16
 
 OFF = np.float32(1.0e6)  # fgcli.ops.gffe.OFF
 ZERO = np.float32(0.0)

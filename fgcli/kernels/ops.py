@@ -340,14 +340,14 @@ def warp_blend(color1, depth1, to1, color0, depth0, to0, d_target=None, alpha=0.
                t_d=R.T_D_REL, t_b=R.T_B, static_from=None):
     """warp_frames(color1, depth1, to1, color0, depth0, to0, 'bilinear') and then
     blend_eq1 on its samples, in one pass (fgcli.kernels.blend.warp_blend_kernel): (colour,
-    depth), the same values; None where the fused kernel does not apply (no AVX-512, not
+    depth), the same values; None where the fused kernel does not apply (no AVX-512 or AVX2, not
     3-channel float32 CPU frames, past 32-bit indices): then the two ops one after the
     other."""
-    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels._intrin import HAVE_WINDOW16
     from fgcli.kernels.warp import flat_ok
 
     frames = (color1, depth1, to1, color0, depth0, to0, d_target)
-    if not HAVE_AVX512 or not _cpu(*frames) or \
+    if not HAVE_WINDOW16 or not _cpu(*frames) or \
             (static_from is not None and not _cpu(static_from.to1, static_from.to0)):
         return None
     if any(t is not None and (t.dtype != torch.float32 or t.dim() != 3)
@@ -465,7 +465,7 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
     has_of = of_vec is not None
     from fgcli.kernels.fsr3 import WINDOW16
 
-    if has_of and WINDOW16:  # both paths in one pass (the window fetches: AVX-512)
+    if has_of and WINDOW16:  # both paths in one pass (the window fetches: AVX-512 / AVX2)
         from fgcli.kernels.fsr3 import interp_window_kernel
 
         interp_window_kernel(_a(color0), _a(color1), _a(vec), _a(of_vec), _a(mask_prev)[0],
@@ -762,7 +762,7 @@ def _warm_kernels(families=None) -> tuple:
     warm() does not compile would leave the cache cold for ever)."""
     from fgcli.kernels import blend, field, fill, flow, fsr3, pyramid, scene, splat, warp
 
-    from fgcli.kernels._intrin import HAVE_AVX512
+    from fgcli.kernels._intrin import HAVE_WINDOW16
 
     fams = set(FAMILIES if families is None else families)
     kernels = ()
@@ -772,7 +772,7 @@ def _warm_kernels(families=None) -> tuple:
                     fill.gap_fill_kernel, fill.extrap_fill_kernel, warp.warp_kernel,
                     fill.gap_fill_inplace_kernel, fill.extrap_fill_inplace_kernel,
                     warp.mv_warp_kernel, blend.blend_kernel, blend.crossfade_kernel,
-                    *((blend.warp_blend_kernel,) if HAVE_AVX512 else ()),
+                    *((blend.warp_blend_kernel,) if HAVE_WINDOW16 else ()),
                     blend.any_nonzero_kernel, scene.scene_luma_kernel,
                     scene.scene_counts_kernel)
     if "fsr3" in fams:
@@ -788,7 +788,7 @@ def _warm_kernels(families=None) -> tuple:
                     field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, pyramid.pool2_kernel,
-                    fsr3.interp_window_kernel if HAVE_AVX512 else fsr3.interp_flow_kernel,
+                    fsr3.interp_window_kernel if HAVE_WINDOW16 else fsr3.interp_flow_kernel,
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.level_sample_kernel,
                     flow.luma8_kernel,

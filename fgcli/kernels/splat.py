@@ -11,10 +11,10 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clamp_b,
                                    sdepth_b, smv_b)
-from fgcli.kernels._intrin import HAVE_AVX512, atomic_min_i64, fetch16x2, fma, ld32, mad32
+from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, fetch16x2, fma, ld32, mad32
 
 I32 = np.int32
-WINDOW16 = HAVE_AVX512
+WINDOW16 = HAVE_WINDOW16
 
 
 @njit(**KERNEL)

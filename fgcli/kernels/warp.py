@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sflow_b, smv_b, sval_b
-from fgcli.kernels._intrin import (HAVE_AVX512, bilinear16x3, fma, ld32, ld_pair, mad32,
+from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x3, fma, ld32, ld_pair, mad32,
                                    nearest16)
 
 I32 = np.int32
@@ -259,9 +259,9 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
                          gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
 
 
-# the mob-fgsr warp: 16-lane window fetches where the CPU has AVX-512 (numba's cache keys
-# compiled code by CPU, so a cache never carries one machine's choice to another)
-warp_kernel = warp_window_kernel if HAVE_AVX512 else warp_pixels_kernel
+# the mob-fgsr warp: 16-lane window fetches where the CPU has AVX-512 or AVX2 (numba's
+# cache keys compiled code by CPU, so a cache never carries one machine's choice to another)
+warp_kernel = warp_window_kernel if HAVE_WINDOW16 else warp_pixels_kernel
 
 
 @njit(**KERNEL)
