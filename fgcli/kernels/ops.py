@@ -691,8 +691,6 @@ _GROUPS = (
      ("core", lambda i: any_nonzero(i["mv"])),
      ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
      ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
-     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
-                                         i["mv"])),
      ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),
      ("fsr3", lambda i: avg_pool2(i["c"])),
      ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
@@ -702,6 +700,10 @@ _GROUPS = (
      ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
      ("fsr3", lambda i: field_luminance(i["c"]))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
+     # (with AVX-512 / AVX2 the one-pass interpolation, 3 min of compiling on a Zen 3, as
+     # long as the fused warp+blend of the other group)
+     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
+                                         i["mv"])),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
      ("core", lambda i: fill_extrap_holes(
          gap_fill(splat_motion(i["dd"], i["mm"], None, 0.5, "linear", "extrap", toward0=False),
