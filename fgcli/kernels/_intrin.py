@@ -349,6 +349,43 @@ def _splat(builder, s):
     return builder.shuffle_vector(u, u, ir.Constant(v16i, [0] * 16))
 
 
+def _fetch_branch(builder, xok, span, tag):
+    """The fetch's three paths: blocks (rows2, rows3, gather, end), the branch to them
+    emitted (a window of 2 rows when the columns fit (xok) and the rows span at most 1,
+    of 3 rows when at most 2, else gathered)."""
+    i32 = ir.IntType(32)
+    fn = builder.function
+    b2, bchk, b3, bg, bend = (fn.append_basic_block(f"{tag}_{n}") for n in
+                              ("rows2", "chk3", "rows3", "gather", "end"))
+    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, ir.Constant(i32, 1))),
+                    b2, bchk)
+    builder.position_at_end(bchk)
+    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, ir.Constant(i32, 2))),
+                    b3, bg)
+    return b2, b3, bg, bend
+
+
+def _fetch_merge(builder, taps, blocks, bend):
+    """At bend, the taps of the three paths' blocks (rows2, rows3, gather; taps[blk]:
+    [[v16f per tap] per plane]) joined, and the path taken (2, 3 or 0)."""
+    i32, _, v16f = _v16(builder)
+    builder.position_at_end(bend)
+    first = taps[blocks[0]]
+    merged = []
+    for p in range(len(first)):
+        row = []
+        for k in range(len(first[p])):
+            phi = builder.phi(v16f)
+            for blk in blocks:
+                phi.add_incoming(taps[blk][p][k], blk)
+            row.append(phi)
+        merged.append(row)
+    path = builder.phi(i32)
+    for blk, n in zip(blocks, (2, 3, 0)):
+        path.add_incoming(ir.Constant(i32, n), blk)
+    return merged, path
+
+
 def _fetch16(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
     """_fetch16_512 with AVX-512, else _fetch16_avx2 (the same values, the same paths)."""
     f = _fetch16_512 if HAVE_AVX512 else _fetch16_avx2
@@ -394,12 +431,7 @@ def _fetch16_avx2(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
         cxs.append(cx)
         xok = builder.and_(xok, builder.icmp_signed(
             "<=", builder.sub(builder.call(smax8, [xbh[k]]), cx), c32(15)))
-    fn = builder.function
-    b2, bchk, b3, bg, bend = (fn.append_basic_block(n) for n in
-                              ("w8_rows2", "w8_chk3", "w8_rows3", "w8_gather", "w8_end"))
-    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(1))), b2, bchk)
-    builder.position_at_end(bchk)
-    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(2))), b3, bg)
+    b2, b3, bg, bend = _fetch_branch(builder, xok, span, "w8")
     taps = {}
     zero, one, seven = (ir.Constant(v8i, [v] * 8) for v in (0, 1, 7))
 
@@ -467,20 +499,7 @@ def _fetch16_avx2(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
         out.append(row)
     taps[bg] = out
     builder.branch(bend)
-    builder.position_at_end(bend)
-    merged = []
-    for p in range(len(plane_offs)):
-        row = []
-        for k in range(ntaps):
-            phi = builder.phi(v16f)
-            for blk in (b2, b3, bg):
-                phi.add_incoming(taps[blk][p][k], blk)
-            row.append(phi)
-        merged.append(row)
-    path = builder.phi(i32)
-    for blk, n in ((b2, 2), (b3, 3), (bg, 0)):
-        path.add_incoming(c32(n), blk)
-    return merged, path
+    return _fetch_merge(builder, taps, (b2, b3, bg), bend)
 
 
 def _fetch16_512(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
@@ -505,12 +524,7 @@ def _fetch16_512(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
     xok = builder.and_(builder.icmp_signed("<=", builder.sub(builder.call(smax, [xb]), cx),
                                            c32(31)),
                        builder.icmp_signed(">=", w, c32(32)))
-    fn = builder.function
-    b2, bchk, b3, bg, bend = (fn.append_basic_block(n) for n in
-                              ("w16_rows2", "w16_chk3", "w16_rows3", "w16_gather", "w16_end"))
-    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(1))), b2, bchk)
-    builder.position_at_end(bchk)
-    builder.cbranch(builder.and_(xok, builder.icmp_signed("<=", span, c32(2))), b3, bg)
+    b2, b3, bg, bend = _fetch_branch(builder, xok, span, "w16")
     taps = {}
 
     def window(nrows, blk):
@@ -562,20 +576,7 @@ def _fetch16_512(builder, base, plane_offs, w, h, xa, xb, ya, yb, ntaps=4):
                     for r, x in ((ra, xa), (ra, xb), (rb, xa), (rb, xb))[:ntaps]])
     taps[bg] = out
     builder.branch(bend)
-    builder.position_at_end(bend)
-    merged = []
-    for p in range(len(plane_offs)):
-        row = []
-        for k in range(ntaps):
-            phi = builder.phi(v16f)
-            for blk in (b2, b3, bg):
-                phi.add_incoming(taps[blk][p][k], blk)
-            row.append(phi)
-        merged.append(row)
-    path = builder.phi(i32)
-    for blk, n in ((b2, 2), (b3, 3), (bg, 0)):
-        path.add_incoming(c32(n), blk)
-    return merged, path
+    return _fetch_merge(builder, taps, (b2, b3, bg), bend)
 
 
 def _sval16(builder, v):
