@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, bits, sdepth_b, smv_b, sval, sval_b
+from fgcli.kernels._common import F32, INLINE, KERNEL, ROWS, bits, sdepth_b, smv_b, sval, sval_b
 from fgcli.kernels._intrin import bilinear16x3, fma, nearest16
 from fgcli.kernels.warp import I32, _taps_px, _warp_px
 
@@ -229,6 +229,68 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
                     _out_px(c0, c1, k, y, x, y, wts[x], endpoint, out_c)
 
 
+@njit(**ROWS)
+def _warp_blend_rows(ya, yb, c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has_dt,
+                     mvalid, sto1, sto0, has_static, a, near_w, td, tb, tb_acc, tb_rej,
+                     endpoint, table, base, out_c, out_d, XA, XB, YA, YB, JX, JY, Z, WT,
+                     s1, s0, sd1, sd0, v1, v0, wts, need, idx):
+    """warp_blend_kernel's rows ya..yb (one chunk of its parallel loop), with the chunk's row
+    buffers."""
+    h, w = d1.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    nb = w // 16
+    for y in range(ya, yb):
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        for x in range(w):
+            _taps_px(to1, v1, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                     hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+        for blk in range(nb):
+            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), s1, w32, I32(0))
+            nearest16(d1, w32, h32, JX, JY, I32(16 * blk), sd1, I32(0))
+        for x in range(16 * nb, w):
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+                     kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+        for x in range(w):
+            _taps_px(to0, v0, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                     hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
+        for blk in range(nb):
+            bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), s0, w32, I32(0))
+            nearest16(d0, w32, h32, JX, JY, I32(16 * blk), sd0, I32(0))
+        for x in range(16 * nb, w):
+            _warp_px(c0, d0, to0, s0, sd0, v0, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+                     kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+        # blend_kernel's three passes on the sample row 0
+        if has_static:  # (versioned: _eq1_row)
+            nn = _eq1_row(s0, s1, sd0, sd1, v0, v1, 0, y, dt, has_dt, mvalid, sto1, sto0,
+                          True, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
+        else:
+            nn = _eq1_row(s0, s1, sd0, sd1, v0, v1, 0, y, dt, has_dt, mvalid, sto1, sto0,
+                          False, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
+        if nn > 0:
+            n = 0
+            for x in range(w):
+                idx[n] = np.int32(x)
+                n += np.int32(need[x])
+            for i in range(n):
+                x = np.int64(idx[i])
+                if _similar(s0, s1, 0, x, tb, table, base) != 0:
+                    wts[x] = near_w
+        for k in range(3):
+            for x in range(w):
+                _out_px(s0, s1, k, 0, x, y, wts[x], endpoint, out_c)
+
+
 @njit(**KERNEL)
 def warp_blend_kernel(c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has_dt, mvalid, sto1,
                       sto0, has_static, a, near_w, td, tb, tb_acc, tb_rej, endpoint, table,
@@ -240,14 +302,6 @@ def warp_blend_kernel(c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has_dt, mv
     inputs, then blend_kernel's (sto1, sto0: its to1, to0 of the static test); the same
     values, bit for bit. AVX-512 or AVX2 (the window fetches: fgcli.kernels._intrin)."""
     h, w = d1.shape
-    hw = F32(w * 0.5)
-    hh = F32(h * 0.5)
-    wm1 = F32(w - 1)
-    hm1 = F32(h - 1)
-    w32 = I32(w)
-    h32 = I32(h)
-    hw32 = I32(h * w)
-    nb = w // 16
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
@@ -271,50 +325,10 @@ def warp_blend_kernel(c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has_dt, mv
         wts = np.empty(w, dtype=np.float32)
         need = np.empty(w, dtype=np.uint8)
         idx = np.empty(w, dtype=np.int32)
-        for y in range(ya, yb):
-            yf = F32(y)
-            gyy = gyn[y]
-            lo_y = F32(-0.5) - yf
-            hi_y = F32(h - 0.5) - yf
-            for x in range(w):
-                _taps_px(to1, v1, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
-                         hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
-            for blk in range(nb):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), s1, w32, I32(0))
-                nearest16(d1, w32, h32, JX, JY, I32(16 * blk), sd1, I32(0))
-            for x in range(16 * nb, w):
-                _warp_px(c1, d1, to1, s1, sd1, v1, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
-                         kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
-            for x in range(w):
-                _taps_px(to0, v0, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
-                         hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
-            for blk in range(nb):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), s0, w32, I32(0))
-                nearest16(d0, w32, h32, JX, JY, I32(16 * blk), sd0, I32(0))
-            for x in range(16 * nb, w):
-                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
-                         kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
-            # blend_kernel's three passes on the sample row 0
-            if has_static:  # (versioned: _eq1_row)
-                nn = _eq1_row(s0, s1, sd0, sd1, v0, v1, 0, y, dt, has_dt, mvalid, sto1, sto0,
-                              True, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
-            else:
-                nn = _eq1_row(s0, s1, sd0, sd1, v0, v1, 0, y, dt, has_dt, mvalid, sto1, sto0,
-                              False, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
-            if nn > 0:
-                n = 0
-                for x in range(w):
-                    idx[n] = np.int32(x)
-                    n += np.int32(need[x])
-                for i in range(n):
-                    x = np.int64(idx[i])
-                    if _similar(s0, s1, 0, x, tb, table, base) != 0:
-                        wts[x] = near_w
-            for k in range(3):
-                for x in range(w):
-                    _out_px(s0, s1, k, 0, x, y, wts[x], endpoint, out_c)
+        _warp_blend_rows(ya, yb, c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has_dt,
+                         mvalid, sto1, sto0, has_static, a, near_w, td, tb, tb_acc, tb_rej,
+                         endpoint, table, base, out_c, out_d, XA, XB, YA, YB, JX, JY, Z, WT,
+                         s1, s0, sd1, sd0, v1, v0, wts, need, idx)
 
 
 @njit(**KERNEL)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, ROWS, clamp_b, sdepth_b, sflow_b,
                                    smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
 from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x3, ld_pair, mad32, taps16
@@ -394,14 +394,10 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
                 out[k, y, x] = sval_b(_lerp_b(cof, out[k, y, x], bias[y, x]))
 
 
-@njit(**KERNEL)
-def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx, ky,
-                         out, holes, bias):
-    """interp_game_kernel and interp_flow_kernel (with the optical-flow path) in one pass,
-    row by row, every colour sample through the 16-lane window fetches (AVX-512 only:
-    WINDOW16): the lerp weight, the mask flags, the game samples' similarity and their
-    lerp stay in row buffers instead of six frame-sized planes written and read back. The
-    same operations, bit for bit."""
+@njit(**ROWS)
+def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx,
+                        ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T, G, S):
+    """interp_window_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = mask_prev.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -413,6 +409,90 @@ def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gx
     nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
+    for y in range(ya, yb):
+        yf = F32(y)
+        gyy = gyn[y]
+        lo_y = F32(-0.5) - yf
+        hi_y = F32(h - 0.5) - yf
+        # the game samples toward both frames
+        for x in range(w):
+            rx = smv_b(vec[0, y, x]) * a
+            ry = smv_b(vec[1, y, x]) * a
+            in0[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+            bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                     YA, YB, WT, Z)
+        for blk in range(nblk):
+            bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), P, w32, I32(0))
+        for x in range(16 * nblk, w):
+            _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(x),
+                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
+        for x in range(w):
+            rx = smv_b(vec[0, y, x]) * na
+            ry = smv_b(vec[1, y, x]) * na
+            in1[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+            bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                     YA, YB, WT, Z)
+        for blk in range(nblk):
+            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), C, w32, I32(0))
+        for x in range(16 * nblk, w):
+            _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(x),
+                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
+        for x in range(w):
+            mx = mask_prev[y, x] * in0[x]
+            my = mask_cur[y, x] * in1[x]
+            T[x] = clamp_b((a + nb * (F32(1.0) - mx)) - a * (F32(1.0) - my), F32(0.0),
+                           F32(1.0))
+            holes[y, x] = (mx <= F32(0.0)) & (my <= F32(0.0))
+            G[x] = F32((mx > F32(0.0)) != (my > F32(0.0)))
+        for k in range(3):
+            for x in range(w):
+                O[k, x] = _lerp_b(P[k, x], C[k, x], T[x])
+        for x in range(w):
+            S[x] = _similarity(P, C, x, eps, eps2)
+        # the optical-flow samples (into P and C: the game ones are used up)
+        for x in range(w):
+            bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
+                     gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+        for blk in range(nblk):
+            bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), P, w32, I32(0))
+        for x in range(16 * nblk, w):
+            _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
+                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                    hw32, P, x)
+        for x in range(w):
+            bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
+                     gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+        for blk in range(nblk):
+            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                         I32(y * w), C, w32, I32(0))
+        for x in range(16 * nblk, w):
+            _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
+                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                    hw32, C, x)
+        for x in range(w):
+            s_of = _similarity(P, C, x, eps, eps2)
+            b = S[x] / (eps if s_of < eps else s_of)
+            b = F32(1.0) if s_of <= F32(0.0) else b
+            b = clamp_b(b, F32(0.0), F32(1.0))
+            bias[y, x] = F32(1.0) if (b != b) | (G[x] != F32(0.0)) else b
+        for k in range(3):
+            for x in range(w):
+                cof = _lerp_b(P[k, x], C[k, x], T[x])
+                out[k, y, x] = sval_b(_lerp_b(cof, O[k, x], bias[y, x]))
+
+
+@njit(**KERNEL)
+def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx, ky,
+                         out, holes, bias):
+    """interp_game_kernel and interp_flow_kernel (with the optical-flow path) in one pass,
+    row by row, every colour sample through the 16-lane window fetches (AVX-512 or AVX2:
+    HAVE_WINDOW16): the lerp weight, the mask flags, the game samples' similarity and their
+    lerp stay in row buffers instead of six frame-sized planes written and read back. The
+    same operations, bit for bit."""
+    h, w = mask_prev.shape
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
@@ -432,79 +512,9 @@ def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gx
         T = np.empty(w, dtype=np.float32)
         G = np.empty(w, dtype=np.float32)
         S = np.empty(w, dtype=np.float32)
-        for y in range(ya, yb):
-            yf = F32(y)
-            gyy = gyn[y]
-            lo_y = F32(-0.5) - yf
-            hi_y = F32(h - 0.5) - yf
-            # the game samples toward both frames
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * a
-                ry = smv_b(vec[1, y, x]) * a
-                in0[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), P, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(x),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * na
-                ry = smv_b(vec[1, y, x]) * na
-                in1[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), C, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(x),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
-            for x in range(w):
-                mx = mask_prev[y, x] * in0[x]
-                my = mask_cur[y, x] * in1[x]
-                T[x] = clamp_b((a + nb * (F32(1.0) - mx)) - a * (F32(1.0) - my), F32(0.0),
-                               F32(1.0))
-                holes[y, x] = (mx <= F32(0.0)) & (my <= F32(0.0))
-                G[x] = F32((mx > F32(0.0)) != (my > F32(0.0)))
-            for k in range(3):
-                for x in range(w):
-                    O[k, x] = _lerp_b(P[k, x], C[k, x], T[x])
-            for x in range(w):
-                S[x] = _similarity(P, C, x, eps, eps2)
-            # the optical-flow samples (into P and C: the game ones are used up)
-            for x in range(w):
-                bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
-                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), P, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                        hw32, P, x)
-            for x in range(w):
-                bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
-                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), C, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                        hw32, C, x)
-            for x in range(w):
-                s_of = _similarity(P, C, x, eps, eps2)
-                b = S[x] / (eps if s_of < eps else s_of)
-                b = F32(1.0) if s_of <= F32(0.0) else b
-                b = clamp_b(b, F32(0.0), F32(1.0))
-                bias[y, x] = F32(1.0) if (b != b) | (G[x] != F32(0.0)) else b
-            for k in range(3):
-                for x in range(w):
-                    cof = _lerp_b(P[k, x], C[k, x], T[x])
-                    out[k, y, x] = sval_b(_lerp_b(cof, O[k, x], bias[y, x]))
+        _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn,
+                            kx, ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T,
+                            G, S)
 
 
 @njit(**KERNEL)

@@ -154,7 +154,8 @@ def gap_fill(result, depth_threshold_rel=0.01, fill="nearest", fallback_mv=None,
     a = result.alpha
     c1, c0 = (-(1.0 - a), a) if result.mode == "interp" else (a, 1.0 + a)
     has0 = result.to0 is not None
-    has_fb, has_fbd = fallback_mv is not None, fallback_mv is not None and fallback_depth is not None
+    has_fb = fallback_mv is not None
+    has_fbd = has_fb and fallback_depth is not None
     if _in_place(result, in_place):
         filled, holes = (_empty(1, h, w, dtype=torch.bool) for _ in range(2))
         gap_fill_inplace_kernel(

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, INLINE, KERNEL, clamp_b, sflow_b, smv_b, sval_b
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, ROWS, clamp_b, sflow_b, smv_b,
+                                   sval_b)
 from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x3, fma, ld32, ld_pair, mad32,
                                    nearest16)
 
@@ -204,12 +205,10 @@ def _taps_px(to, v, oy, x, y, xf, lo_y, hi_y, gxn_x, gyy, kx, ky, hw, hh, wm1, h
     JY[x] = I32(clamp_b(np.floor(fy + (F32(y) + F32(0.5))), F32(0.0), hm1))
 
 
-@njit(**KERNEL)
-def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0,
-                       v0):
-    """warp_pixels_kernel with the taps fetched 16 pixels at a time
-    (fgcli.kernels._intrin.bilinear16x3 and nearest16: AVX-512 only); the last w % 16
-    pixels of a row per pixel. The same values, bit for bit."""
+@njit(**ROWS)
+def _warp_window_rows(ya, yb, c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0,
+                      sd0, v0, XA, XB, YA, YB, JX, JY, Z, WT):
+    """warp_window_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = d1.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -219,23 +218,12 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
     h32 = I32(h)
     hw32 = I32(h * w)
     nb = w // 16
-    for py in prange(h):
-        y = np.int64(py)  # prange indices are unsigned: keep index arithmetic signed
+    for y in range(ya, yb):
         yf = F32(y)
         gyy = gyn[y]
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
         ro = I32(y * w)
-        # (row buffers; the arrays go to the intrinsics whole: a reshaped view made here
-        # would count as an alias and cost every loop its vectorisation)
-        XA = np.empty(w, dtype=np.int32)
-        XB = np.empty(w, dtype=np.int32)
-        YA = np.empty(w, dtype=np.int32)
-        YB = np.empty(w, dtype=np.int32)
-        JX = np.empty(w, dtype=np.int32)
-        JY = np.empty(w, dtype=np.int32)
-        Z = np.empty(w, dtype=np.int32)
-        WT = np.empty((4, w), dtype=np.float32)
         for x in range(w):
             _taps_px(to1, v1, y, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                      hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
@@ -257,6 +245,31 @@ def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
             for x in range(16 * nb, w):
                 _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
                          gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
+
+
+@njit(**KERNEL)
+def warp_window_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1, s0, sd0,
+                       v0):
+    """warp_pixels_kernel with the taps fetched 16 pixels at a time
+    (fgcli.kernels._intrin.bilinear16x3 and nearest16: AVX-512 or AVX2); the last w % 16
+    pixels of a row per pixel. The same values, bit for bit."""
+    h, w = d1.shape
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        # (row buffers; the arrays go to the intrinsics whole: a reshaped view made here
+        # would count as an alias and cost every loop its vectorisation)
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        JX = np.empty(w, dtype=np.int32)
+        JY = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
+        _warp_window_rows(ya, yb, c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1, v1,
+                          s0, sd0, v0, XA, XB, YA, YB, JX, JY, Z, WT)
 
 
 # the mob-fgsr warp: 16-lane window fetches where the CPU has AVX-512 or AVX2 (numba's
