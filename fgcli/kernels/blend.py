@@ -190,6 +190,34 @@ def _eq1_row(c0, c1, d0, d1, v0, v1, ys, y, dt, has_dt, mvalid, to1, to0, has_st
     return nn
 
 
+@njit(**ROWS)
+def _blend_rows(ya, yb, c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_static, a,
+                near_w, td, tb, tb_acc, tb_rej, endpoint, table, base, out_c, out_d, wts, need,
+                idx):
+    """blend_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    h, w = d0.shape
+    for y in range(ya, yb):
+        if has_static:  # (versioned: _eq1_row)
+            nn = _eq1_row(c0, c1, d0, d1, v0, v1, y, y, dt, has_dt, mvalid, to1, to0,
+                          True, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
+        else:
+            nn = _eq1_row(c0, c1, d0, d1, v0, v1, y, y, dt, has_dt, mvalid, to1, to0,
+                          False, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
+        if nn > 0:  # the undecided few: the table, pixel by pixel
+            n = 0
+            for x in range(w):
+                idx[n] = np.int32(x)
+                n += np.int32(need[x])
+            for i in range(n):
+                x = np.int64(idx[i])
+                if _similar(c0, c1, y, x, tb, table, base) != 0:
+                    wts[x] = near_w
+        # one plane at a time: a pixel loop writing all three planes ran 3-6x slower
+        for k in range(3):
+            for x in range(w):
+                _out_px(c0, c1, k, y, x, y, wts[x], endpoint, out_c)
+
+
 @njit(**KERNEL)
 def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_static,
                  a, near_w, td, tb, tb_acc, tb_rej, endpoint, table, base, out_c, out_d):
@@ -207,26 +235,9 @@ def blend_kernel(c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_stati
         wts = np.empty(w, dtype=np.float32)
         need = np.empty(w, dtype=np.uint8)
         idx = np.empty(w, dtype=np.int32)
-        for y in range(ya, yb):
-            if has_static:  # (versioned: _eq1_row)
-                nn = _eq1_row(c0, c1, d0, d1, v0, v1, y, y, dt, has_dt, mvalid, to1, to0,
-                              True, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
-            else:
-                nn = _eq1_row(c0, c1, d0, d1, v0, v1, y, y, dt, has_dt, mvalid, to1, to0,
-                              False, a, near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need)
-            if nn > 0:  # the undecided few: the table, pixel by pixel
-                n = 0
-                for x in range(w):
-                    idx[n] = np.int32(x)
-                    n += np.int32(need[x])
-                for i in range(n):
-                    x = np.int64(idx[i])
-                    if _similar(c0, c1, y, x, tb, table, base) != 0:
-                        wts[x] = near_w
-            # one plane at a time: a pixel loop writing all three planes ran 3-6x slower
-            for k in range(3):
-                for x in range(w):
-                    _out_px(c0, c1, k, y, x, y, wts[x], endpoint, out_c)
+        _blend_rows(ya, yb, c0, c1, d0, d1, v0, v1, dt, has_dt, mvalid, to1, to0, has_static, a,
+                    near_w, td, tb, tb_acc, tb_rej, endpoint, table, base, out_c, out_d, wts, need,
+                    idx)
 
 
 @njit(**ROWS)

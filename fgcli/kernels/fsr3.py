@@ -122,27 +122,19 @@ def _tap_mask_t(T, i, x, y, zt, thr, w, h, wm1, hm1):
     return acc
 
 
-@njit(**KERNEL)
-def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc):
-    """Both masks: toward the previous frame the taps of depth_prev at ``q + a v``, toward
-    the current frame those of depth1 at ``q - b v`` (a = alpha, b = 1 - alpha as float32);
-    1.0 where the agreeing weight reaches ``threshold``, else 0.0. C-contiguous depths,
-    flat_ok(h, w, 1)."""
+@njit(**ROWS)
+def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc, XA,
+                       XB, YA, YB, T):
+    """disocclusion_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = depth_t.shape
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
     w32 = I32(w)
     h32 = I32(h)
     nblk = w // 16
-    for py in prange(h):
-        y = np.int64(py)
+    for y in range(ya, yb):
         yf = F32(y)
         if WINDOW16:  # the taps into row buffers, fetched 16 pixels at a time, then the sums
-            XA = np.empty(w, dtype=np.int32)
-            XB = np.empty(w, dtype=np.int32)
-            YA = np.empty(w, dtype=np.int32)
-            YB = np.empty(w, dtype=np.int32)
-            T = np.empty((4, w), dtype=np.float32)
             for x in range(w):
                 _mask_taps(F32(x) + smv_b(vec[0, y, x]) * a, yf + smv_b(vec[1, y, x]) * a, x,
                            w32, h32, wm1, hm1, XA, XB, YA, YB)
@@ -186,6 +178,26 @@ def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, 
                 acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
                                 hm1)
                 mc[y, x] = F32(acc >= threshold)
+
+
+@njit(**KERNEL)
+def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc):
+    """Both masks: toward the previous frame the taps of depth_prev at ``q + a v``, toward
+    the current frame those of depth1 at ``q - b v`` (a = alpha, b = 1 - alpha as float32);
+    1.0 where the agreeing weight reaches ``threshold``, else 0.0. C-contiguous depths,
+    flat_ok(h, w, 1)."""
+    h, w = depth_t.shape
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        T = np.empty((4, w), dtype=np.float32)
+        _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc,
+                           XA, XB, YA, YB, T)
 
 
 @njit(**INLINE)
@@ -233,14 +245,10 @@ def _similarity(pa, pb, ox, eps, eps2):
 # LLVM from vectorising the gathers (4-10x slower at 1080p). Hence two kernels.
 
 
-@njit(**KERNEL)
-def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn, gyn, kx, ky,
-                       out, holes, T, G, S):
-    """interpolate_fsr3's game path (linear space, 3-channel colour): out = lerp(P, C, t)
-    (sanitised unless ``has_of``), holes, and for the optical-flow pass the lerp weight
-    T = t, G = 1.0 where exactly one mask is 0 (the game path decides), S = the game
-    samples' colour similarity. a = alpha, na = -(1 - alpha) (the scale of the vectors
-    toward frame 1), nb = 1 - alpha, all float32."""
+@njit(**ROWS)
+def _interp_game_rows(ya, yb, c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn, gyn, kx,
+                      ky, out, holes, T, G, S, P, C, in0, in1, XA, XB, YA, YB, WT, Z):
+    """interp_game_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = mask_prev.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -252,25 +260,12 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
     nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
-    for py in prange(h):
-        y = np.int64(py)
+    for y in range(ya, yb):
         yf = F32(y)
         gyy = gyn[y]
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
-        P = np.empty((3, w), dtype=np.float32)
-        C = np.empty((3, w), dtype=np.float32)
-        in0 = np.empty(w, dtype=np.float32)
-        in1 = np.empty(w, dtype=np.float32)
         if WINDOW16:  # taps into row buffers, then 16 pixels per fetch, the rest per pixel
-            # (bil_taps' row buffers, allocated here: unpacked from a helper's tuple they
-            # would count as aliases and no loop of the kernel would be vectorised)
-            XA = np.empty(w, dtype=np.int32)
-            XB = np.empty(w, dtype=np.int32)
-            YA = np.empty(w, dtype=np.int32)
-            YB = np.empty(w, dtype=np.int32)
-            WT = np.empty((4, w), dtype=np.float32)
-            Z = np.empty(w, dtype=np.int32)
             for x in range(w):
                 rx = smv_b(vec[0, y, x]) * a
                 ry = smv_b(vec[1, y, x]) * a
@@ -318,6 +313,35 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
         if has_of:
             for x in range(w):
                 S[y, x] = _similarity(P, C, x, eps, eps2)
+
+
+@njit(**KERNEL)
+def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn, gyn, kx, ky,
+                       out, holes, T, G, S):
+    """interpolate_fsr3's game path (linear space, 3-channel colour): out = lerp(P, C, t)
+    (sanitised unless ``has_of``), holes, and for the optical-flow pass the lerp weight
+    T = t, G = 1.0 where exactly one mask is 0 (the game path decides), S = the game
+    samples' colour similarity. a = alpha, na = -(1 - alpha) (the scale of the vectors
+    toward frame 1), nb = 1 - alpha, all float32."""
+    h, w = mask_prev.shape
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        # (row buffers allocated here one by one: unpacked from a helper's tuple they would
+        # count as aliases and no loop of the kernel would be vectorised)
+        P = np.empty((3, w), dtype=np.float32)
+        C = np.empty((3, w), dtype=np.float32)
+        in0 = np.empty(w, dtype=np.float32)
+        in1 = np.empty(w, dtype=np.float32)
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
+        Z = np.empty(w, dtype=np.int32)
+        _interp_game_rows(ya, yb, c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn, gyn,
+                          kx, ky, out, holes, T, G, S, P, C, in0, in1, XA, XB, YA, YB, WT, Z)
 
 
 @njit(**KERNEL)
