@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, clamp_b, sdepth_b, sflow_b,
-                                   smv_b, sval_b)
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b, sdepth_b,
+                                   sflow_b, smv_b, sval_b)
 from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
@@ -65,6 +65,63 @@ def _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1, hm
         out[k, y, x] = r if s else b
 
 
+@njit(**ROWS)
+def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
+                       out, fout, inplace, want_f, XA, XB, YA, YB, Z, WT, R):
+    """sample_where_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    h, w = sel.shape
+    hw = F32(w * 0.5)
+    hh = F32(h * 0.5)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    for y in range(ya, yb):
+        gyy = gyn[y]
+        if want_f:
+            for x in range(w):
+                s = sel[y, x] != U0
+                b0 = fbase[0, y, x] if has_fbase else ZERO
+                b1 = fbase[1, y, x] if has_fbase else ZERO
+                fout[0, y, x] = flow[0, y, x] if s else b0
+                fout[1, y, x] = flow[1, y, x] if s else b1
+        for xs in range((w + SPAN - 1) // SPAN):
+            xa = np.int64(xs) * SPAN
+            n = min(SPAN, w - xa)
+            m = np.int64(0)  # selected pixels in the run (sel is 0 / 1)
+            for i in range(n):
+                m += np.int64(sel[y, xa + i])
+            if m == 0:
+                if not inplace:
+                    for i in range(n):
+                        x = xa + i
+                        for k in range(3):
+                            out[k, y, x] = base[k, y, x] if has_base else ZERO
+            elif WINDOW16 and 2 * m >= n:  # mostly selected: the run's taps into row
+                # buffers, 16 pixels per fetch, then the selects (a sparse run: per pixel)
+                for i in range(n):
+                    x = xa + i
+                    bil_taps(sflow_b(flow[0, y, x]), sflow_b(flow[1, y, x]), x, gxn[x], gyy,
+                             kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+                for blk in range(n // 16):
+                    bilinear16x3(img, hw32, w32, h32, XA, XB, YA, YB, WT, Z,
+                                 I32(xa + 16 * blk), I32(y * w), R, w32, I32(0))
+                for i in range(n // 16 * 16):
+                    x = xa + i
+                    s = sel[y, x] != U0
+                    for k in range(3):
+                        b = base[k, y, x] if has_base else ZERO
+                        out[k, y, x] = R[k, x] if s else b
+                for i in range(n // 16 * 16, n):  # (a row's last w % 16 pixels)
+                    _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
+                               wm1, hm1, w32, h32, hw32, out, xa + i, y)
+            else:
+                for i in range(n):
+                    _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
+                               wm1, hm1, w32, h32, hw32, out, xa + i, y)
+
+
 @njit(**KERNEL)
 def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
                         out, fout, inplace, want_f):
@@ -74,72 +131,25 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
     Sparse selections (the fills select their holes, often 0-2 % of the pixels) skip the
     sampling: a run of SPAN pixels with no pixel selected copies base (or zeroes; nothing
     when ``inplace``: out is base itself); any other run computes every pixel with
-    selects (with AVX-512, a run at least half selected fetches its taps 16 pixels at a
-    time: fgcli.kernels._intrin.bilinear16x3). The flow outside the selection is never
+    selects (with AVX-512 or AVX2, a run at least half selected fetches its taps 16 pixels
+    at a time: fgcli.kernels._intrin.bilinear16x3). The flow outside the selection is never
     read in a skipped run (the fills leave it unwritten; a sampled run sanitises it)."""
     h, w = sel.shape
-    hw = F32(w * 0.5)
-    hh = F32(h * 0.5)
-    wm1 = F32(w - 1)
-    hm1 = F32(h - 1)
-    w32 = I32(w)
-    h32 = I32(h)
-    hw32 = I32(h * w)
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
         yb = (np.int64(ch) + 1) * h // nch
-        if WINDOW16:  # (row buffers of bil_taps and bilinear16x3, one set per chunk of rows)
-            XA = np.empty(w, dtype=np.int32)
-            XB = np.empty(w, dtype=np.int32)
-            YA = np.empty(w, dtype=np.int32)
-            YB = np.empty(w, dtype=np.int32)
-            Z = np.empty(w, dtype=np.int32)
-            WT = np.empty((4, w), dtype=np.float32)
-            R = np.empty((3, w), dtype=np.float32)
-        for y in range(ya, yb):
-            gyy = gyn[y]
-            if want_f:
-                for x in range(w):
-                    s = sel[y, x] != U0
-                    b0 = fbase[0, y, x] if has_fbase else ZERO
-                    b1 = fbase[1, y, x] if has_fbase else ZERO
-                    fout[0, y, x] = flow[0, y, x] if s else b0
-                    fout[1, y, x] = flow[1, y, x] if s else b1
-            for xs in range((w + SPAN - 1) // SPAN):
-                xa = np.int64(xs) * SPAN
-                n = min(SPAN, w - xa)
-                m = np.int64(0)  # selected pixels in the run (sel is 0 / 1)
-                for i in range(n):
-                    m += np.int64(sel[y, xa + i])
-                if m == 0:
-                    if not inplace:
-                        for i in range(n):
-                            x = xa + i
-                            for k in range(3):
-                                out[k, y, x] = base[k, y, x] if has_base else ZERO
-                elif WINDOW16 and 2 * m >= n:  # mostly selected: the run's taps into row
-                    # buffers, 16 pixels per fetch, then the selects (a sparse run: per pixel)
-                    for i in range(n):
-                        x = xa + i
-                        bil_taps(sflow_b(flow[0, y, x]), sflow_b(flow[1, y, x]), x, gxn[x], gyy,
-                                 kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-                    for blk in range(n // 16):
-                        bilinear16x3(img, hw32, w32, h32, XA, XB, YA, YB, WT, Z,
-                                     I32(xa + 16 * blk), I32(y * w), R, w32, I32(0))
-                    for i in range(n // 16 * 16):
-                        x = xa + i
-                        s = sel[y, x] != U0
-                        for k in range(3):
-                            b = base[k, y, x] if has_base else ZERO
-                            out[k, y, x] = R[k, x] if s else b
-                    for i in range(n // 16 * 16, n):  # (a row's last w % 16 pixels)
-                        _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
-                                   wm1, hm1, w32, h32, hw32, out, xa + i, y)
-                else:
-                    for i in range(n):
-                        _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
-                                   wm1, hm1, w32, h32, hw32, out, xa + i, y)
+        # (row buffers of bil_taps and bilinear16x3, one set per chunk of rows; used with
+        # the window fetches only)
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
+        R = np.empty((3, w), dtype=np.float32)
+        _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx,
+                           ky, out, fout, inplace, want_f, XA, XB, YA, YB, Z, WT, R)
 
 
 # ----------------------------------------------------------------------------- warp
@@ -950,6 +960,99 @@ def pp_tile_scan_kernel(depth, valid, K, holes, ok):
             ok[ty, tx] = nv & nf
 
 
+@njit(**ROWS)
+def _pp_tiles_band(ty, color, depth, valid, fb, K, holes, out_c, out_d, inplace, c0, d0, w0,
+                   e0, lc, ld, lw, le):
+    """pp_tiles_kernel's band of tiles ty (one pass of its parallel loop), with the
+    band's tile buffers."""
+    h, w = depth.shape
+    nty, ntx = holes.shape
+    T = np.int64(1) << K
+    y0 = ty * T
+    y1 = min(h, y0 + T)
+    if not inplace:
+        for y in range(y0, y1):
+            for k in range(3):
+                for x in range(w):
+                    out_c[k, y, x] = sval_b(color[k, y, x])
+            for x in range(w):
+                out_d[y, x] = depth[y, x]
+    for tx in range(ntx):
+        if holes[ty, tx] == U0:
+            continue
+        x0 = tx * T
+        th = y1 - y0
+        tw = min(w, x0 + T) - x0
+        for y in range(th):  # level 0 of the tile: pp_prep_kernel's planes
+            for x in range(tw):
+                for k in range(3):
+                    c0[k, y, x] = color[k, y0 + y, x0 + x]
+                d = depth[y0 + y, x0 + x]
+                fin = (d > ZERO) & (d < INF)
+                v = valid[y0 + y, x0 + x] != U0
+                d0[y, x] = d if fin else ZERO
+                w0[y, x] = ONE if v else ZERO
+                e0[y, x] = ONE if (v & fin) else ZERO
+        hk = th
+        wk = tw
+        # pp_down_kernel, in the tile (its row loops written out again: the frame's
+        # kernel keeps them in its body, where LLVM vectorises them; not in a helper)
+        for lv in range(1, K + 1):
+            nh = (hk + 1) // 2
+            nw = (wk + 1) // 2
+            sc = c0 if lv == 1 else lc[lv - 1]
+            sd = d0 if lv == 1 else ld[lv - 1]
+            sw = w0 if lv == 1 else lw[lv - 1]
+            se = e0 if lv == 1 else le[lv - 1]
+            oc = lc[lv]
+            od = ld[lv]
+            ow = lw[lv]
+            oe = le[lv]
+            wp = wk // 2
+            for oy in range(nh):
+                ya = 2 * oy
+                r1 = ya + 1 < hk
+                yb = ya + 1 if r1 else ya
+                cnt2 = F32(2 if r1 else 1) * F32(2)
+                for ox in range(wp):
+                    _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
+                                2 * ox + 1, cnt2, True, r1, r1)
+                for ox in range(wp, nw):
+                    _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
+                                2 * ox, F32(2 if r1 else 1), False, r1, False)
+            hk = nh
+            wk = nw
+        for y in range(th):  # the holes: each chain's first level with weight
+            for x in range(tw):
+                if w0[y, x] != ZERO:
+                    continue
+                for lv in range(1, K + 1):
+                    cy = y >> lv
+                    cx = x >> lv
+                    if lw[lv, cy, cx] > ZERO:
+                        for k in range(3):
+                            out_c[k, y0 + y, x0 + x] = sval_b(lc[lv, k, cy, cx])
+                        break
+                dd = INF
+                for lv in range(1, K + 1):
+                    cy = y >> lv
+                    cx = x >> lv
+                    if le[lv, cy, cx] > ZERO:
+                        dd = ld[lv, cy, cx]
+                        break
+                out_d[y0 + y, x0 + x] = dd
+    if inplace:  # (after the band's tiles have read it)
+        for y in range(y0, y1):
+            for k in range(3):
+                r = out_c[k, y]
+                e = np.int64(0)  # the largest exponent field: all ones for inf / NaN
+                for x in range(w):
+                    e = max(e, np.int64(np.float32(r[x]).view(np.int32) & 0x7F800000))
+                if e == 0x7F800000:
+                    for x in range(w):
+                        r[x] = sval_b(r[x])
+
+
 @njit(**KERNEL)
 def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d, inplace):
     """push_pull_fill's result when every tile with a hole is ok (pp_tile_scan_kernel):
@@ -970,15 +1073,6 @@ def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d, inplace):
     S = max(np.int64(1), T >> 1)
     for pty in prange(nty):
         ty = np.int64(pty)
-        y0 = ty * T
-        y1 = min(h, y0 + T)
-        if not inplace:
-            for y in range(y0, y1):
-                for k in range(3):
-                    for x in range(w):
-                        out_c[k, y, x] = sval_b(color[k, y, x])
-                for x in range(w):
-                    out_d[y, x] = depth[y, x]
         c0 = np.empty((3, T, T), dtype=np.float32)
         d0 = np.empty((T, T), dtype=np.float32)
         w0 = np.empty((T, T), dtype=np.float32)
@@ -987,80 +1081,8 @@ def pp_tiles_kernel(color, depth, valid, fb, K, holes, out_c, out_d, inplace):
         ld = np.empty((K + 1, S, S), dtype=np.float32)
         lw = np.empty((K + 1, S, S), dtype=np.float32)
         le = np.empty((K + 1, S, S), dtype=np.float32)
-        for tx in range(ntx):
-            if holes[ty, tx] == U0:
-                continue
-            x0 = tx * T
-            th = y1 - y0
-            tw = min(w, x0 + T) - x0
-            for y in range(th):  # level 0 of the tile: pp_prep_kernel's planes
-                for x in range(tw):
-                    for k in range(3):
-                        c0[k, y, x] = color[k, y0 + y, x0 + x]
-                    d = depth[y0 + y, x0 + x]
-                    fin = (d > ZERO) & (d < INF)
-                    v = valid[y0 + y, x0 + x] != U0
-                    d0[y, x] = d if fin else ZERO
-                    w0[y, x] = ONE if v else ZERO
-                    e0[y, x] = ONE if (v & fin) else ZERO
-            hk = th
-            wk = tw
-            # pp_down_kernel, in the tile (its row loops written out again: the frame's
-            # kernel keeps them in its body, where LLVM vectorises them; not in a helper)
-            for lv in range(1, K + 1):
-                nh = (hk + 1) // 2
-                nw = (wk + 1) // 2
-                sc = c0 if lv == 1 else lc[lv - 1]
-                sd = d0 if lv == 1 else ld[lv - 1]
-                sw = w0 if lv == 1 else lw[lv - 1]
-                se = e0 if lv == 1 else le[lv - 1]
-                oc = lc[lv]
-                od = ld[lv]
-                ow = lw[lv]
-                oe = le[lv]
-                wp = wk // 2
-                for oy in range(nh):
-                    ya = 2 * oy
-                    r1 = ya + 1 < hk
-                    yb = ya + 1 if r1 else ya
-                    cnt2 = F32(2 if r1 else 1) * F32(2)
-                    for ox in range(wp):
-                        _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
-                                    2 * ox + 1, cnt2, True, r1, r1)
-                    for ox in range(wp, nw):
-                        _pp_down_px(sc, sd, sw, se, fb, oc, od, ow, oe, oy, ox, ya, yb, 2 * ox,
-                                    2 * ox, F32(2 if r1 else 1), False, r1, False)
-                hk = nh
-                wk = nw
-            for y in range(th):  # the holes: each chain's first level with weight
-                for x in range(tw):
-                    if w0[y, x] != ZERO:
-                        continue
-                    for lv in range(1, K + 1):
-                        cy = y >> lv
-                        cx = x >> lv
-                        if lw[lv, cy, cx] > ZERO:
-                            for k in range(3):
-                                out_c[k, y0 + y, x0 + x] = sval_b(lc[lv, k, cy, cx])
-                            break
-                    dd = INF
-                    for lv in range(1, K + 1):
-                        cy = y >> lv
-                        cx = x >> lv
-                        if le[lv, cy, cx] > ZERO:
-                            dd = ld[lv, cy, cx]
-                            break
-                    out_d[y0 + y, x0 + x] = dd
-        if inplace:  # (after the band's tiles have read it)
-            for y in range(y0, y1):
-                for k in range(3):
-                    r = out_c[k, y]
-                    e = np.int64(0)  # the largest exponent field: all ones for inf / NaN
-                    for x in range(w):
-                        e = max(e, np.int64(np.float32(r[x]).view(np.int32) & 0x7F800000))
-                    if e == 0x7F800000:
-                        for x in range(w):
-                            r[x] = sval_b(r[x])
+        _pp_tiles_band(ty, color, depth, valid, fb, K, holes, out_c, out_d, inplace, c0, d0, w0,
+                       e0, lc, ld, lw, le)
 
 
 # ----------------------------------------------------------------------------- hole fills
