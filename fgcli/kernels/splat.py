@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, bits, clamp_b,
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, bits, clamp_b,
                                    sdepth_b, smv_b)
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, fetch16x2, fma, ld32, mad32
 
@@ -367,6 +367,49 @@ def _resolve_from(k, x, y, quad, w0, T, ca, w, to1, to0, dout, valid, source):
                    source)
 
 
+@njit(**ROWS)
+def _splat_resolve_window_rows(ya, yb, buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, valid,
+                               source, JX, JY, T):
+    """splat_resolve_window_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    h, w = depth1.shape
+    w2 = w + 2
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    nb = w // 16
+    for y in range(ya, yb):
+        r = (y + 1) * w2 + 1
+        for x in range(w):
+            _winner_px(buf[r + x], x, y, JX, JY)
+        for b in range(nb):
+            fetch16x2(mv1, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(0), w32)
+            if quad:
+                fetch16x2(disp, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(2 * w), w32)
+        for x in range(16 * nb, w):
+            i = mad32(JY[x], w32, JX[x])
+            T[0, x] = ld32(mv1, i)
+            T[1, x] = ld32(mv1, mad32(hw32, I32(1), i))
+            if quad:
+                T[2, x] = ld32(disp, i)
+                T[3, x] = ld32(disp, mad32(hw32, I32(1), i))
+        if quad and w0:
+            for x in range(w):
+                _resolve_from(buf[r + x], x, y, True, True, T, ca, w32, to1, to0, dout,
+                              valid, source)
+        elif quad:
+            for x in range(w):
+                _resolve_from(buf[r + x], x, y, True, False, T, ca, w32, to1, to0, dout,
+                              valid, source)
+        elif w0:
+            for x in range(w):
+                _resolve_from(buf[r + x], x, y, False, True, T, ca, w32, to1, to0, dout,
+                              valid, source)
+        else:
+            for x in range(w):
+                _resolve_from(buf[r + x], x, y, False, False, T, ca, w32, to1, to0, dout,
+                              valid, source)
+
+
 @njit(**KERNEL)
 def splat_resolve_window_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout, valid,
                                 source):
@@ -374,11 +417,6 @@ def splat_resolve_window_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, 
     16 target pixels at a time (fgcli.kernels._intrin.fetch16x2, AVX-512 only): per row,
     the sources into row buffers, the fetches, then the outputs. The same values."""
     h, w = depth1.shape
-    w2 = w + 2
-    w32 = I32(w)
-    h32 = I32(h)
-    hw32 = I32(h * w)
-    nb = w // 16
     nch = min(h, 64)
     for ch in prange(nch):
         ya = np.int64(ch) * h // nch
@@ -386,37 +424,8 @@ def splat_resolve_window_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, 
         JX = np.empty(w, dtype=np.int32)
         JY = np.empty(w, dtype=np.int32)
         T = np.empty((4, w), dtype=np.float32)
-        for y in range(ya, yb):
-            r = (y + 1) * w2 + 1
-            for x in range(w):
-                _winner_px(buf[r + x], x, y, JX, JY)
-            for b in range(nb):
-                fetch16x2(mv1, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(0), w32)
-                if quad:
-                    fetch16x2(disp, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(2 * w), w32)
-            for x in range(16 * nb, w):
-                i = mad32(JY[x], w32, JX[x])
-                T[0, x] = ld32(mv1, i)
-                T[1, x] = ld32(mv1, mad32(hw32, I32(1), i))
-                if quad:
-                    T[2, x] = ld32(disp, i)
-                    T[3, x] = ld32(disp, mad32(hw32, I32(1), i))
-            if quad and w0:
-                for x in range(w):
-                    _resolve_from(buf[r + x], x, y, True, True, T, ca, w32, to1, to0, dout,
-                                  valid, source)
-            elif quad:
-                for x in range(w):
-                    _resolve_from(buf[r + x], x, y, True, False, T, ca, w32, to1, to0, dout,
-                                  valid, source)
-            elif w0:
-                for x in range(w):
-                    _resolve_from(buf[r + x], x, y, False, True, T, ca, w32, to1, to0, dout,
-                                  valid, source)
-            else:
-                for x in range(w):
-                    _resolve_from(buf[r + x], x, y, False, False, T, ca, w32, to1, to0, dout,
-                                  valid, source)
+        _splat_resolve_window_rows(ya, yb, buf, depth1, mv1, disp, ca, quad, w0, to1, to0, dout,
+                                   valid, source, JX, JY, T)
 
 
 # with AVX-512, the resolve's reads at the winners as 16-lane window fetches (numba's cache
