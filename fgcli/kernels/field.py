@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, clamp_b, sdepth_b, smv_b, sval_b
+from fgcli.kernels._common import F32, INLINE, KERNEL, ROWS, clamp_b, sdepth_b, smv_b, sval_b
 from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x1, fmin16, ld32, mad32, umax16
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
@@ -375,10 +375,11 @@ def luma_plane_kernel(c, out):
 
 
 @njit(**INLINE)
-def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins):
+def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB, Z, WT):
     """s0[x] = frame 0's luminance l0 read bilinearly at (x, y) + (V0[x], V1[x])
     (sanitised vectors; grid_sample's arithmetic, zero vectors exact) and ins[x] = 1.0
-    where that point is on screen, for the pixels of row y."""
+    where that point is on screen, for the pixels of row y. XA .. WT: bil_taps' row
+    buffers (the caller's: with the window fetches only)."""
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
     wm1 = F32(w - 1)
@@ -391,12 +392,6 @@ def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins):
     lo_y = F32(-0.5) - yf
     hi_y = F32(h - 0.5) - yf
     if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
-        XA = np.empty(w, dtype=np.int32)
-        XB = np.empty(w, dtype=np.int32)
-        YA = np.empty(w, dtype=np.int32)
-        YB = np.empty(w, dtype=np.int32)
-        Z = np.empty(w, dtype=np.int32)
-        WT = np.empty((4, w), dtype=np.float32)
         for x in range(w):
             vx = smv_b(V0[x])
             vy = smv_b(V1[x])
@@ -441,6 +436,22 @@ def _prio(hv, lo):
     return (hv << 5) | lo | 32768
 
 
+@njit(**ROWS)
+def _agreement_block_rows(ya, yb, l0, c1, vec, sh, gxn, gyn, kx, ky, lo, V0, V1, XA, XB, YA, YB, Z,
+                          WT, s0, ins):
+    """agreement_block_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    h, w = lo.shape
+    for y in range(ya, yb):
+        by = y >> sh  # (the block row)
+        for x in range(w):
+            xb = np.int64(x) >> sh
+            V0[x] = vec[0, by, xb]
+            V1[x] = vec[1, by, xb]
+        _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB, Z, WT)
+        for x in range(w):
+            lo[y, x] = np.uint8(_agreement(s0[x], _lum(c1, y, x), ins[x]))
+
+
 @njit(**KERNEL)
 def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
     """The per-pixel part of the entries of a field whose vectors vec (2, ., .) are per
@@ -450,20 +461,22 @@ def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
     vectors and priorities as it scatters them: no frame-sized positions and entries (four
     planes, 33 MB at 1080p) written here and read back there."""
     h, w = lo.shape
-    for py in prange(h):
-        y = np.int64(py)
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
         V0 = np.empty(w, dtype=np.float32)
         V1 = np.empty(w, dtype=np.float32)
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
-        yb = y >> sh
-        for x in range(w):
-            xb = np.int64(x) >> sh
-            V0[x] = vec[0, yb, xb]
-            V1[x] = vec[1, yb, xb]
-        _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins)
-        for x in range(w):
-            lo[y, x] = np.uint8(_agreement(s0[x], _lum(c1, y, x), ins[x]))
+        _agreement_block_rows(ya, yb, l0, c1, vec, sh, gxn, gyn, kx, ky, lo, V0, V1, XA, XB, YA,
+                              YB, Z, WT, s0, ins)
 
 
 @njit(**KERNEL)
@@ -511,6 +524,23 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
             _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
 
 
+@njit(**ROWS)
+def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB, YA,
+                       YB, Z, WT, s0, ins):
+    """entries_prio_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    h, w = prio.shape
+    for y in range(ya, yb):
+        _row_samples(l0, vec[0, y], vec[1, y], y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA,
+                     YB, Z, WT)
+        for x in range(w):
+            prio[y, x] = np.uint16(_prio(hi[y, x], _agreement(s0[x], _lum(c1, y, x), ins[x])))
+        if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
+            for x in range(w):
+                t0 = smv_b(vec[0, y, x]) * a1
+                t1 = smv_b(vec[1, y, x]) * a1
+                dist[y, x] = t0 * t0 + t1 * t1
+
+
 @njit(**KERNEL)
 def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist):
     """fgcli.ops.fsr3.field_entries' per-pixel part (l0: luma_plane_kernel's plane of
@@ -529,18 +559,20 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist):
     field went from 21.1 to 19.7 ms median per 1080p frame, old and new code in one process
     with the CLI's allocator settings)."""
     h, w = prio.shape
-    for py in prange(h):
-        y = np.int64(py)
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        XA = np.empty(w, dtype=np.int32)
+        XB = np.empty(w, dtype=np.int32)
+        YA = np.empty(w, dtype=np.int32)
+        YB = np.empty(w, dtype=np.int32)
+        Z = np.empty(w, dtype=np.int32)
+        WT = np.empty((4, w), dtype=np.float32)
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
-        _row_samples(l0, vec[0, y], vec[1, y], y, gxn, gyn, kx, ky, h, w, s0, ins)
-        for x in range(w):
-            prio[y, x] = np.uint16(_prio(hi[y, x], _agreement(s0[x], _lum(c1, y, x), ins[x])))
-        if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
-            for x in range(w):
-                t0 = smv_b(vec[0, y, x]) * a1
-                t1 = smv_b(vec[1, y, x]) * a1
-                dist[y, x] = t0 * t0 + t1 * t1
+        _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB,
+                           YA, YB, Z, WT, s0, ins)
 
 
 @njit(**KERNEL)
