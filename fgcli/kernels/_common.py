@@ -60,9 +60,10 @@ KERNEL = dict(cache=True, parallel=True, fastmath=False, nogil=True)
 
 
 class RowsCompiler(CompilerBase):
-    """numba's nopython pipeline with the flag its parallel loops' bodies get: the arrays
-    passed in do not alias (LLVM then vectorises loops over row buffers and frames without
-    run-time overlap checks). The ``ROWS`` functions are those bodies, written apart."""
+    """numba's nopython pipeline with the flag its parallel loops' bodies get when the
+    kernel makes no aliases: the arrays passed in do not alias (noalias arguments in the
+    LLVM IR, as the parfor body had). The ``ROWS`` functions are those bodies, written
+    apart."""
 
     def define_pipelines(self):
         self.state.flags.noalias = True

@@ -701,8 +701,8 @@ _GROUPS = (
      ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
      ("fsr3", lambda i: field_luminance(i["c"]))),
     (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
-     # (with AVX-512 / AVX2 the one-pass interpolation, 3 min of compiling on a Zen 3, as
-     # long as the fused warp+blend of the other group)
+     # (with AVX-512 / AVX2 the one-pass interpolation, the other long compile beside the
+     # fused warp+blend of the other group: ~35 and ~46 s on a Zen 3)
      ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
                                          i["mv"])),
      ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
