@@ -40,10 +40,14 @@ def main(argv=None) -> int:
     from fgcli.kernels import ops
 
     fams = None if args.families is None else [f.strip() for f in args.families.split(",")]
-    t0 = time.perf_counter()
-    ops._warm_group(0, fams)
-    ops._warm_group(1, fams)
-    total = time.perf_counter() - t0
+    inputs = ops._inputs()
+    tasks = []  # warm()'s tasks in its order (there two processes share them), here in turn
+    for k, (fam, call) in enumerate(ops._TASKS):
+        if fams is None or fam in fams:
+            t0 = time.perf_counter()
+            call(inputs)
+            tasks.append((k, time.perf_counter() - t0))
+    total = sum(t for _, t in tasks)
     rows = []
     for d in gc.get_objects():
         if isinstance(d, Dispatcher) and d.py_func.__module__.startswith("fgcli"):
@@ -56,6 +60,8 @@ def main(argv=None) -> int:
 
     print(f"# {ll.get_host_cpu_name()}, families {fams or 'all'}: {total:.1f} s in one "
           f"process, {len(rows)} compiled signatures")
+    print("warm()'s tasks in its order (task: s): "
+          + ", ".join(f"{k}: {t:.1f}" for k, t in tasks))
     print("| kernel | compile s | of it LLVM s |")
     print("|---|---|---|")
     for c, lv, name in rows[:args.top]:

@@ -673,58 +673,65 @@ def _warm_pyramid_u8():
         pool2_u8_kernel(np.zeros((8, 8), dtype=np.uint8), np.empty((4, 4), dtype=np.uint8))
 
 
-# two groups of about equal compile time (compiled by two processes on a cold cache), each
-# call tagged with its kernel family: "core" (mob-fgsr, mv-warp, blend and the shared
-# dilation / splat / gap fill), "fsr3", "gffe". A run loads the families its stages use.
-_GROUPS = (
-    (("core", lambda i: dilate_nearest_depth(i["d"], i["mv"])),
-     ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"], 2)),
-     ("core", lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp",
-                                     i["d"], 0.05)),
-     ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),
-     ("core", lambda i: gap_fill(splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic",
-                                              "interp", i["d"], 0.05),
-                                 0.01, "nearest", i["mv"], i["d"], in_place=True)),
-     ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
-                                  0.5, 0.02, 0.13, static_from=i["gf"])),
-     ("core", lambda i: warp_blend(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0,
-                                   None, 0.5, 0.02, 0.13, static_from=i["gf"])),
-     ("core", lambda i: any_nonzero(i["mv"])),
-     ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
-     ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),
-     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),
-     ("fsr3", lambda i: avg_pool2(i["c"])),
-     ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
-     ("fsr3", lambda i: luma8(i["c"])),
-     ("fsr3", lambda i: depth_priority(i["d"])),
-     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
-     ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
-     ("fsr3", lambda i: field_luminance(i["c"]))),
-    (("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0)),
-     # (with AVX-512 / AVX2 the one-pass interpolation, the other long compile beside the
-     # fused warp+blend of the other group: ~35 and ~46 s on a Zen 3)
-     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
-                                         i["mv"])),
-     ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),
-     ("core", lambda i: fill_extrap_holes(
-         gap_fill(splat_motion(i["dd"], i["mm"], None, 0.5, "linear", "extrap", toward0=False),
-                  0.01, in_place=True), i["mv"], i["dd"], in_place=True)),
-     ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),
-     ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
-     ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
-     ("fsr3", lambda i: _warm_pyramid_u8()),
-     ("fsr3", lambda i: fill_packed_field(vector_field(i["c"], i["c"], i["mv"],
-                                                       (i["d"] * 100).to(torch.int64)))),
-     ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"][:, :1, :1].contiguous(),
-                                     torch.ones(1, 1, 1, dtype=torch.int64), 0.5, False,
-                                     block=8)),
-     # (the general path's scatter and walk: frames one pixel wide)
-     ("fsr3", lambda i: vector_field(i["c"][:, :, :1].contiguous(),
-                                     i["c"][:, :, :1].contiguous(),
-                                     torch.full((2, 8, 1), 3.0),
-                                     (i["d"][:, :, :1] * 100).to(torch.int64))),
-     ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
-     ("gffe", lambda i: _warm_gffe(i["d"]))),
+# every kernel call warm() makes, each tagged with its kernel family: "core" (mob-fgsr,
+# mv-warp, blend and the shared dilation / splat / gap fill), "fsr3", "gffe" (a run loads
+# the families its stages use). On a cold cache two processes take the tasks in this order,
+# each the next one not yet taken: longest compile first (benchmarks/compile_time.py, Zen
+# 3 seconds in the comments), and a task's shared kernels in an earlier task, so that the
+# other process finds them in the cache instead of compiling them a second time.
+_TASKS = (
+    ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"])),  # 5: (every mv pipeline)
+    ("core", lambda i: warp_blend(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0,
+                                  None, 0.5, 0.02, 0.13, static_from=i["gf"])),  # 55
+    ("gffe", lambda i: _warm_gffe_geom(i)),  # 35: (the geometry of every gffe task below)
+    ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
+                                        i["mv"])),  # 35 (one-pass, with AVX2 / AVX-512)
+    ("gffe", lambda i: _warm_gffe_push_pull(i)),  # 36
+    ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),  # 30
+    ("gffe", lambda i: _warm_gffe_background(i)),  # 35
+    ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
+                                 0.5, 0.02, 0.13, static_from=i["gf"])),  # 22
+    ("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"],
+                                   i["gf"].to0)),  # 20
+    ("gffe", lambda i: _warm_gffe_history(i)),  # 20
+    ("core", lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp",
+                                    i["d"], 0.05)),  # 23
+    ("gffe", lambda i: _warm_gffe_trajectory(i)),  # 17
+    ("fsr3", lambda i: fill_packed_field(vector_field(i["c"], i["c"], i["mv"],
+                                                      (i["d"] * 100).to(torch.int64)))),
+    ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),  # 11
+    ("core", lambda i: gap_fill(splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic",
+                                             "interp", i["d"], 0.05),
+                                0.01, "nearest", i["mv"], i["d"], in_place=True)),  # 11
+    ("gffe", lambda i: _warm_gffe_fills(i)),
+    ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),  # 10
+    ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),  # 9
+    ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"][:, :1, :1].contiguous(),
+                                    torch.ones(1, 1, 1, dtype=torch.int64), 0.5, False,
+                                    block=8)),
+    # (the general path's scatter and walk: frames one pixel wide)
+    ("fsr3", lambda i: vector_field(i["c"][:, :, :1].contiguous(),
+                                    i["c"][:, :, :1].contiguous(),
+                                    torch.full((2, 8, 1), 3.0),
+                                    (i["d"][:, :, :1] * 100).to(torch.int64))),
+    ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
+    ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),  # 7
+    ("core", lambda i: fill_extrap_holes(
+        gap_fill(splat_motion(i["dd"], i["mm"], None, 0.5, "linear", "extrap", toward0=False),
+                 0.01, in_place=True), i["mv"], i["dd"], in_place=True)),
+    ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"], 2)),
+    ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
+    ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
+    ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
+    ("fsr3", lambda i: _warm_pyramid_u8()),
+    ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
+    ("core", lambda i: any_nonzero(i["mv"])),
+    ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
+    ("fsr3", lambda i: avg_pool2(i["c"])),
+    ("fsr3", lambda i: luma8(i["c"])),
+    ("fsr3", lambda i: depth_priority(i["d"])),
+    ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
+    ("fsr3", lambda i: field_luminance(i["c"])),
 )
 FAMILIES = ("core", "fsr3", "gffe")
 
@@ -740,11 +747,22 @@ def families_of(stages) -> set:
     return fams
 
 
-def _warm_group(k: int, families=None) -> None:
+def _warm_tasks(families=None, claims=None) -> None:
+    """Call the kernels of _TASKS (of the given families; default all). With ``claims`` (a
+    folder two processes share) only the tasks this process claims first: a task is taken
+    by creating its file there, which succeeds in one process only."""
+    import os
+
     i = _inputs()
-    for fam, call in _GROUPS[k]:
-        if families is None or fam in families:
-            call(i)
+    for k, (fam, call) in enumerate(_TASKS):
+        if families is not None and fam not in families:
+            continue
+        if claims is not None:
+            try:
+                os.close(os.open(os.path.join(claims, str(k)), os.O_CREAT | os.O_EXCL))
+            except FileExistsError:  # the other process has it
+                continue
+        call(i)
 
 
 def _cache_cold(families=None) -> bool:
@@ -827,30 +845,41 @@ def warm(parallel: bool = True, families=None) -> float:
     of the given families (default: all; see families_of) by calling it once on an 8x8
     input, so that cost is paid and measured at start-up instead of inside the first
     frame's timings. A cold cache is filled by two processes at once (numba compiles under
-    the GIL; ~2x faster on 2 cores). Returns the seconds it took."""
+    the GIL; ~2x faster on 2 cores), each taking the next task of _TASKS that the other has
+    not taken. Returns the seconds it took."""
     import os
     import subprocess
     import sys
     import time
 
     t0 = time.perf_counter()
-    proc = None
+    proc = claims = None
     fams = None if families is None else sorted(set(families) & set(FAMILIES))
     if parallel and (os.cpu_count() or 1) > 1 and sys.executable and _cache_cold(fams):
+        import tempfile
+
+        claims = tempfile.mkdtemp(prefix="fgen-warm-")
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-c", "from fgcli.kernels.ops import _warm_group; "
-                 f"_warm_group(1, {fams!r})"], stdout=subprocess.DEVNULL,
+                [sys.executable, "-c", "from fgcli.kernels.ops import _warm_tasks; "
+                 f"_warm_tasks({fams!r}, {claims!r})"], stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL)
         except OSError:  # no second process here: compile everything in this one
             proc = None
-    if proc is not None:
-        try:
-            _warm_group(0, fams)
-        finally:
-            proc.wait()
-    _warm_group(0, fams)
-    _warm_group(1, fams)  # from the cache the other process wrote (or compiled here if it failed)
+    try:
+        if proc is not None:
+            try:
+                _warm_tasks(fams, claims)
+            finally:
+                proc.wait()
+        # every kernel loaded here: the other process's from the cache it wrote (or compiled
+        # here, one task after the other, if it failed)
+        _warm_tasks(fams)
+    finally:
+        if claims is not None:
+            import shutil
+
+            shutil.rmtree(claims, ignore_errors=True)
     return time.perf_counter() - t0
 
 
@@ -1436,27 +1465,48 @@ def project(X, cam, size):
     return px.view(shape), py.view(shape), d.view(shape), ok.view(shape)
 
 
-def _warm_gffe(d) -> None:
-    """warm(): gffe's geometry kernels (a sky row: the second pass too)."""
-    d = d.clone()
+def _gffe_inputs(i) -> dict:
+    """warm()'s gffe tasks' inputs: a sky pixel (the geometry's second pass too), camera
+    positions made by the reference (a task compiles only the kernels it is for)."""
+    d = i["d"].clone()
     d[0, 0] = float("inf")
     cam = (np.eye(4), np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -1.0, -0.2],
                                 [0, 0, -1.0, 0]]))
+    h, w = d.shape[-2:]
+    c = torch.rand(3, h, w, generator=torch.Generator().manual_seed(0))
+    return dict(d=d, cam=cam, h=h, w=w, c=c, mv=torch.zeros(2, h, w), v=d < 1.5,
+                p=G.unproject(d, cam))
+
+
+def _warm_gffe_geom(i) -> None:
+    g = _gffe_inputs(i)
+    d, cam = g["d"], g["cam"]
     p = unproject(d, cam)
     project(p, cam, tuple(d.shape[-2:]))
     reproject(d, cam, cam, tuple(d.shape[-2:]))
-    # the fused gffe ops (fgcli.kernels.gffe), once each
-    h, w = d.shape[-2:]
-    c = torch.rand(3, h, w, generator=torch.Generator().manual_seed(0))
-    mv = torch.zeros(2, h, w)
-    v = d < 1.5
+    warp_positions(g["c"], p, cam)
+    median_depth(d)
+
+
+def _warm_gffe_trajectory(i) -> None:
+    g = _gffe_inputs(i)
+    d, cam, p, v = g["d"], g["cam"], g["p"], g["v"]
     dilate_trajectory(torch.stack([p, p]), d, cam, v)
     dilated_positions(torch.stack([p, p]), d, cam, v, 0.5)
     dilated_positions(torch.stack([p, p]), d, cam, None, 0.5)
-    mv1 = torch.full((2, h, w), 3.0)
+
+
+def _warm_gffe_history(i) -> None:
+    g = _gffe_inputs(i)
+    d, cam = g["d"], g["cam"]
+    mv1 = torch.full((2, g["h"], g["w"]), 3.0)
     traj, _ = track_history(d, mv1, cam, cam, d, None, 3, 0.5)
     track_history(d, mv1, cam, cam, None, traj, 3, 0.5)
-    warp_positions(c, p, cam)
+
+
+def _warm_gffe_background(i) -> None:
+    g = _gffe_inputs(i)
+    c, d, mv, v, cam, p, h, w = (g[k] for k in ("c", "d", "mv", "v", "cam", "p", "h", "w"))
     layers = collect_background(c, d, v, cam, layer1_scale=1)
     layers = collect_background(c, d, v, cam, layers, cam, layer1_scale=1)
     half = collect_background(c, d, v, cam, layers, cam, layer1_scale=2)
@@ -1469,14 +1519,23 @@ def _warm_gffe(d) -> None:
     # (a half-size layer 1 with valid cells: an empty layer is not projected)
     half = [half[0], dict(half[1], valid=torch.ones_like(half[1]["valid"]))]
     background_fill(c, d, mv, v, half, cam, cam, "nearest")
+
+
+def _warm_gffe_push_pull(i) -> None:
+    g = _gffe_inputs(i)
+    c, d, v = g["c"], g["d"], g["v"]
     push_pull_fill(c, v, d, tile_k=12)  # (a frame of one tile: the dense path)
     one = torch.ones_like(v)
     one[0, 0, 1] = False  # (one hole, in a 4 x 4 tile with valid finite depths: tiles)
     push_pull_fill(c, one, d, tile_k=2)
+
+
+def _warm_gffe_fills(i) -> None:
+    g = _gffe_inputs(i)
+    c, d, mv, v, cam = (g[k] for k in ("c", "d", "mv", "v", "cam"))
     reproject_fill(c, v, d, c, d, cam, cam)
     fill_holes(c, d, mv, v, 0.1, "reproject", "clamp", True, c, d, cam, cam)
     vector_rule_fill(c, v, d, mv, c, d, mv, 0.5)
-    median_depth(d)
 
 
 # the gffe ops with these kernels for their camera geometry (the ops' ``geom`` argument;
