@@ -1528,6 +1528,26 @@ def test_warm_fills_a_cold_cache_and_loads_a_warm_one(tmp_path):
     assert outs[1] == ["False", "0", "False"], outs  # the second compiled nothing
 
 
+def test_warm_tasks_are_shared_by_claim_files(tmp_path, monkeypatch):
+    """On a cold cache warm()'s two processes share _TASKS: each runs the next task whose
+    claim file it creates first, skips a task the other claimed and the families not asked
+    for; without a claims folder every task runs (the final in-process load)."""
+    ran = []
+    tasks = tuple((fam, (lambda i, k=k: ran.append(k)))
+                  for k, fam in enumerate(("core", "fsr3", "core", "gffe", "core")))
+    monkeypatch.setattr(K, "_TASKS", tasks)
+    (tmp_path / "2").write_text("")  # taken by the other process
+    K._warm_tasks(["core", "gffe"], str(tmp_path))
+    assert ran == [0, 3, 4]
+    assert sorted(os.listdir(tmp_path)) == ["0", "2", "3", "4"]
+    ran.clear()
+    K._warm_tasks(["core", "gffe"], str(tmp_path))  # every task claimed: none left here
+    assert ran == []
+    K._warm_tasks(["fsr3"])
+    assert ran == [1]
+    assert len(K._TASKS) == len(tasks) and all(f in K.FAMILIES for f, _ in tasks)
+
+
 def test_warm_compiles_every_kernel_the_cold_check_asks_for():
     # _cache_cold() lists kernels by CPU (e.g. the mpsadbw block search or the portable one);
     # a listed kernel that warm() never calls would leave the cache "cold" for ever: every
