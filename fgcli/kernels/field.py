@@ -352,15 +352,21 @@ def depth_rank_kernel(depth, base, thr, b0, shift, hi):
     hi = 1023 - (base[i] + (d >= thr[i])), i = (bits of d >> shift) - b0 clamped to the
     table; depth 0 -> 1023. hi (H, W) int64."""
     h, w = hi.shape
-    n1 = base.shape[0] - 1
+    # int32 arithmetic (d >= 0: its bits are too; step is 1..1023): 8-lane gathers, and a
+    # float -> int32 conversion, which AVX2 has (float -> int64 needs AVX-512; LLVM made
+    # the loop scalar for it: 1080p, Zen 3, 4.2 -> 3.5 ms)
+    n1 = np.int32(base.shape[0] - 1)
+    b032 = np.int32(b0)
+    sh = np.int32(shift)
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
             v = sdepth_b(depth[y, x])
-            i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
-            i = 0 if i < 0 else (n1 if i > n1 else i)
+            i = (np.float32(v).view(np.int32) >> sh) - b032
+            i = np.int32(0) if i < 0 else (n1 if i > n1 else i)
             step = base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
-            hi[y, x] = 1023 - (np.int64(step) if v > F32(0.0) else np.int64(0))
+            hi[y, x] = np.int64(np.int32(1023) - (np.int32(step) if v > F32(0.0)
+                                                  else np.int32(0)))
 
 
 @njit(**KERNEL)
