@@ -676,36 +676,37 @@ def _warm_pyramid_u8():
 # every kernel call warm() makes, each tagged with its kernel family: "core" (mob-fgsr,
 # mv-warp, blend and the shared dilation / splat / gap fill), "fsr3", "gffe" (a run loads
 # the families its stages use). On a cold cache two processes take the tasks in this order,
-# each the next one not yet taken: longest compile first (benchmarks/compile_time.py, Zen
-# 3 seconds in the comments), and a task's shared kernels in an earlier task, so that the
-# other process finds them in the cache instead of compiling them a second time.
+# each the next one not yet taken: about longest compile first, and a task's shared kernels
+# in an earlier task, so that the other process finds them in the cache instead of
+# compiling them a second time. The comments: seconds each task took in this order in one
+# process, fresh cache, Zen 3 (benchmarks/compile_time.py; 0: compiled by an earlier task).
 _TASKS = (
-    ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"])),  # 5: (every mv pipeline)
+    ("core", lambda i: dilate_nearest_depth(i["d"], i["mv"])),  # 6 (every mv pipeline)
     ("core", lambda i: warp_blend(i["c"], i["d"], i["gf"].to1, i["c"], i["d"], i["gf"].to0,
-                                  None, 0.5, 0.02, 0.13, static_from=i["gf"])),  # 55
-    ("gffe", lambda i: _warm_gffe_geom(i)),  # 35: (the geometry of every gffe task below)
+                                  None, 0.5, 0.02, 0.13, static_from=i["gf"])),  # 42
+    ("gffe", lambda i: _warm_gffe_geom(i)),  # 76 (the geometry of every gffe task below)
     ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5,
-                                        i["mv"])),  # 35 (one-pass, with AVX2 / AVX-512)
-    ("gffe", lambda i: _warm_gffe_push_pull(i)),  # 36
-    ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),  # 30
-    ("gffe", lambda i: _warm_gffe_background(i)),  # 35
+                                        i["mv"])),  # 31 (one-pass, with AVX2 / AVX-512)
+    ("gffe", lambda i: _warm_gffe_push_pull(i)),  # 35
+    ("fsr3", lambda i: interpolate_fsr3(i["c"], i["c"], i["mv"], i["d"], i["d"], 0.5)),  # 13
+    ("gffe", lambda i: _warm_gffe_background(i)),  # 43
     ("core", lambda i: blend_eq1(i["s0"], i["s1"], i["sd0"], i["sd1"], i["v0"], i["v1"], None,
-                                 0.5, 0.02, 0.13, static_from=i["gf"])),  # 22
+                                 0.5, 0.02, 0.13, static_from=i["gf"])),  # 25
     ("core", lambda i: warp_frames(i["c"], i["d"], i["gf"].to1, i["c"], i["d"],
-                                   i["gf"].to0)),  # 20
-    ("gffe", lambda i: _warm_gffe_history(i)),  # 20
+                                   i["gf"].to0)),  # 19
+    ("gffe", lambda i: _warm_gffe_history(i)),  # 21
     ("core", lambda i: splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic", "interp",
-                                    i["d"], 0.05)),  # 23
-    ("gffe", lambda i: _warm_gffe_trajectory(i)),  # 17
+                                    i["d"], 0.05)),  # 0
+    ("gffe", lambda i: _warm_gffe_trajectory(i)),  # 13
     ("fsr3", lambda i: fill_packed_field(vector_field(i["c"], i["c"], i["mv"],
-                                                      (i["d"] * 100).to(torch.int64)))),
-    ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),  # 11
+                                                      (i["d"] * 100).to(torch.int64)))),  # 31
+    ("core", lambda i: gap_fill(i["gf"], 0.01, "nearest", i["mv"], i["d"])),  # 12
     ("core", lambda i: gap_fill(splat_motion(i["dd"], i["mm"], i["mv"], 0.5, "quadratic",
                                              "interp", i["d"], 0.05),
-                                0.01, "nearest", i["mv"], i["d"], in_place=True)),  # 11
-    ("gffe", lambda i: _warm_gffe_fills(i)),
+                                0.01, "nearest", i["mv"], i["d"], in_place=True)),  # 0
+    ("gffe", lambda i: _warm_gffe_fills(i)),  # 8
     ("core", lambda i: mv_warp(i["c"], i["d"], i["mv"], 0.5)),  # 10
-    ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),  # 9
+    ("fsr3", lambda i: disocclusion_masks(i["d"], i["d"], i["d"], i["mv"])),  # 8
     ("fsr3", lambda i: vector_field(i["c"], i["c"], i["mv"][:, :1, :1].contiguous(),
                                     torch.ones(1, 1, 1, dtype=torch.int64), 0.5, False,
                                     block=8)),
@@ -715,7 +716,7 @@ _TASKS = (
                                     torch.full((2, 8, 1), 3.0),
                                     (i["d"][:, :, :1] * 100).to(torch.int64))),
     ("fsr3", lambda i: pyramid_inpaint(i["c"], i["d"], i["d"] > 1.0, mode="first")),
-    ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),  # 7
+    ("core", lambda i: fill_extrap_holes(i["e"], i["mv"], i["dd"])),  # 4
     ("core", lambda i: fill_extrap_holes(
         gap_fill(splat_motion(i["dd"], i["mm"], None, 0.5, "linear", "extrap", toward0=False),
                  0.01, in_place=True), i["mv"], i["dd"], in_place=True)),
