@@ -1548,6 +1548,49 @@ def test_warm_tasks_are_shared_by_claim_files(tmp_path, monkeypatch):
     assert len(K._TASKS) == len(tasks) and all(f in K.FAMILIES for f, _ in tasks)
 
 
+
+def test_kernel_cache_stamp_covers_every_kernel_source(tmp_path):
+    """A kernel's numba cache stamp covers the kernel source files it inlines helpers and
+    intrinsics from: a change to any of them makes every cached kernel stale (numba's own
+    stamp, its file's hash only, kept kernels of an unchanged file compiled against old
+    helpers). The wrappers' files (ops.py) hold no compiled code and are left out."""
+    import shutil
+
+    from numba import njit
+
+    from fgcli.kernels import _common, scene
+
+    src = os.path.dirname(os.path.abspath(_common.__file__))
+    d = tmp_path / "kernels"
+    shutil.copytree(src, d, ignore=shutil.ignore_patterns("__pycache__"))
+    h0 = _common.kernel_sources_hash(str(d))
+    assert h0 == _common.kernel_sources_hash(src)
+    (d / "ops.py").write_text((d / "ops.py").read_text() + "\n# a wrapper's change\n")
+    assert _common.kernel_sources_hash(str(d)) == h0
+    (d / "_intrin.py").write_text((d / "_intrin.py").read_text() + "\n# changed\n")
+    assert _common.kernel_sources_hash(str(d)) != h0
+    assert _common.KERNEL_CACHE_STAMPED
+    stamp = scene.scene_luma_kernel._cache._impl.locator.get_source_stamp()
+    assert stamp[1] == h0  # the kernel's: every kernel file's hash with its own
+
+    @njit(cache=True)
+    def elsewhere(x):  # a function outside the package keeps numba's stamp
+        return x
+
+    assert not isinstance(elsewhere._cache._impl.locator.get_source_stamp(), tuple)
+
+
+def test_cache_cold_reads_a_stale_index_as_cold(monkeypatch):
+    # after an upgrade every kernel's index is stale (the stamp above): warm() must then
+    # compile them in two processes, not the pipeline one after the other on one core
+    from fgcli.kernels import scene
+
+    k = scene.scene_counts_kernel
+    monkeypatch.setattr(K, "_warm_kernels", lambda families=None: (k,))
+    assert not K._cache_cold()  # the session fixture compiled it
+    monkeypatch.setattr(k._cache._cache_file, "_source_stamp", (b"older", b"sources"))
+    assert K._cache_cold()
+
 def test_warm_compiles_every_kernel_the_cold_check_asks_for():
     # _cache_cold() lists kernels by CPU (e.g. the mpsadbw block search or the portable one);
     # a listed kernel that warm() never calls would leave the cache "cold" for ever: every

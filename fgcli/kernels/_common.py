@@ -47,6 +47,73 @@ def use_wide_vectors() -> bool:
 
 WIDE_VECTORS = use_wide_vectors()
 
+
+# numba's on-disk cache of a kernel is keyed by a hash of its own source file only, while
+# its compiled code also holds the helpers it inlines from the package's other kernel
+# files and the intrinsics of _intrin.py; a change there would leave every cached kernel
+# of an unchanged file stale (a git pull, an upgrade over an old cache). So the kernels'
+# cache stamp is their file's hash and the hash of every kernel source file.
+_KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))
+_NOT_KERNEL_CODE = ("__init__.py", "ops.py", "reference.py")  # wrappers: no compiled code
+
+
+def kernel_sources_hash(folder: str = _KERNEL_DIR) -> bytes:
+    """sha256 over the names and contents of the kernel source files of ``folder``."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py") and name not in _NOT_KERNEL_CODE:
+            with open(os.path.join(folder, name), "rb") as f:
+                h.update(name.encode() + b"\0" + hashlib.sha256(f.read()).digest())
+    return h.digest()
+
+
+def _stamp_kernel_caches(folder: str = _KERNEL_DIR) -> bool:
+    """Make the cache stamp of the kernels defined in ``folder`` cover every kernel source
+    file there (numba's cache locators, subclassed; must run before the first @njit
+    decoration). False when numba's internals have moved (the plain per-file stamp then
+    stays)."""
+    try:
+        from numba.core import caching
+
+        impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+        classes = list(impl._locator_classes)
+    except (ImportError, AttributeError):
+        return False
+    folders = getattr(impl, "_fgen_kernel_folders", None)
+    if folders is not None:  # another copy of this package (benchmarks/ab.py) made them
+        folders.add(folder)
+        return True
+    bases = [c for c in classes if c.__name__ in (
+        "UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator")]
+    if len(bases) != 3:
+        return False
+    folders = impl._fgen_kernel_folders = {folder}
+    memo = {}
+
+    def stamp(self):
+        d = os.path.dirname(os.path.abspath(self._py_file))
+        if d not in memo:
+            memo[d] = kernel_sources_hash(d)
+        return (super(type(self), self).get_source_stamp(), memo[d])
+
+    def make(base):
+        def from_function(cls, py_func, py_file):
+            if os.path.dirname(os.path.abspath(py_file)) not in folders:
+                return None
+            return super(cls, cls).from_function(py_func, py_file)
+
+        return type("Fgen" + base.__name__, (base,), {
+            "get_source_stamp": stamp, "from_function": classmethod(from_function),
+            "__module__": __name__})
+
+    impl._locator_classes = [make(c) for c in bases] + classes
+    return True
+
+
+KERNEL_CACHE_STAMPED = _stamp_kernel_caches()
+
 F32 = np.float32
 INF = np.float32(np.inf)
 MV_MAX = np.float32(1.0e6)  # fgcli.ops._util.MV_MAX

@@ -767,14 +767,18 @@ def _warm_tasks(families=None, claims=None) -> None:
 
 
 def _cache_cold(families=None) -> bool:
-    """True when some kernel (of the given families; default all) has no on-disk cache index
-    yet (a fresh install). A stale index (an upgrade) reads as warm: those kernels then
-    compile one after the other, as before."""
+    """True when some kernel (of the given families; default all) has no usable on-disk
+    cache index: none yet (a fresh install), or a stale one (its sources changed since: an
+    upgrade; fgcli.kernels._common's stamp covers every kernel source file, so any change
+    makes every index stale). warm() then compiles them in two processes."""
     try:
         import os
 
-        return not all(os.path.exists(k._cache._cache_file._index_path)
-                       for k in _warm_kernels(families))
+        for k in _warm_kernels(families):
+            f = k._cache._cache_file
+            if not os.path.exists(f._index_path) or not f._load_index():
+                return True
+        return False
     except AttributeError:  # numba internals moved: assume warm
         return False
 
