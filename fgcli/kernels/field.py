@@ -323,14 +323,17 @@ _LR, _LG, _LB = F32(0.2126), F32(0.7152), F32(0.0722)  # fgcli.ops.color.REC709_
 def half_bits(v):
     """IEEE binary16 bits (round to nearest even) of a finite float32 within +-65504, as
     torch's ``.to(torch.float16).view(torch.int16) & 0xFFFF`` (checked against torch for
-    every such float32). numba has no float16 type."""
-    x = np.int64(np.float32(v).view(np.int32)) & np.int64(0xFFFFFFFF)
-    sign = (x >> 16) & 0x8000
-    a = x & 0x7FFFFFFF
+    every such float32), as an int32. numba has no float16 type. In 32-bit arithmetic:
+    AVX2 has no float -> int64 conversion, and with one LLVM kept the packing loops at four
+    lanes with scalar conversions."""
+    x = np.float32(v).view(np.int32)
+    sign = np.int32((x >> 16) & 0x8000)
+    a = np.int32(x & 0x7FFFFFFF)
     # a subnormal half (|v| < 2**-14) is the integer multiple of 2**-24, rounded to even
-    sub = np.int64(np.rint(abs(v) * F32(16777216.0)))
-    nrm = (a + 0xFFF + ((a >> 13) & 1) - 0x38000000) >> 13
-    return sign | (sub if a < 0x38800000 else nrm)
+    # (below 1024; the clamp keeps the conversion in range where its result goes unused)
+    sub = np.int32(np.rint(min(abs(v) * F32(16777216.0), F32(1024.0))))
+    nrm = np.int32((a + np.int32(0xFFF) + ((a >> 13) & 1) - np.int32(0x38000000)) >> 13)
+    return np.int32(sign | (sub if a < np.int32(0x38800000) else nrm))
 
 
 @njit(**INLINE)
@@ -341,9 +344,10 @@ def _lum(c, y, x):
 
 @njit(**INLINE)
 def _pack(prio, comp):
-    """pack_entries for one component: prio << 16 | half bits of the clamped component."""
+    """pack_entries for one component: prio << 16 | half bits of the clamped component, as
+    a uint32 (prio: 0 .. 65535; 32-bit arithmetic, see half_bits)."""
     c = clamp_b(comp, F32(-65504.0), F32(65504.0))
-    return (prio << 16) | half_bits(c)
+    return np.uint32(np.int32(prio << 16) | half_bits(c))
 
 
 @njit(**KERNEL)
@@ -503,7 +507,7 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
         KY = np.empty(w, dtype=np.uint32)
         V0 = np.empty(w, dtype=np.float32)
         V1 = np.empty(w, dtype=np.float32)
-        HR = np.empty(w, dtype=np.int64)
+        HR = np.empty(w, dtype=np.int32)  # (32-bit packing: see half_bits)
         q0 = np.empty(w, dtype=np.int32)
         dx = np.empty(w, dtype=np.int32)
         dy = np.empty(w, dtype=np.int32)
@@ -519,13 +523,13 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
                     xb = np.int64(x) >> sh
                     V0[x] = smv_b(vec[0, yb, xb])
                     V1[x] = smv_b(vec[1, yb, xb])
-                    HR[x] = _prio(hi[yb, xb], np.int64(0))
+                    HR[x] = np.int32(_prio(hi[yb, xb], np.int64(0)))
                 for x in range(w):
                     PX[x] = F32(x) + V0[x] * a1
             VC = V0 if c == 0 else V1
             yf = F32(y)
             for x in range(w):
-                KY[x] = np.uint32(_pack(HR[x] | np.int64(lo[y, x]), VC[x]))
+                KY[x] = _pack(HR[x] | np.int32(lo[y, x]), VC[x])
                 PY[x] = yf + V1[x] * a1
             _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
 
@@ -608,7 +612,7 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
         for y in range(h):
             yf = F32(y)
             for x in range(w):
-                KY[x] = np.uint32(_pack(np.int64(prio[y, x]), smv_b(vc[y, x])))
+                KY[x] = _pack(np.int32(prio[y, x]), smv_b(vc[y, x]))
                 PX[x] = F32(x) + smv_b(vec[0, y, x]) * a1
                 PY[x] = yf + smv_b(vec[1, y, x]) * a1
             _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)

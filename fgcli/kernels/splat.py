@@ -189,7 +189,8 @@ def _target(dx, dy, xf, yf, w, h):
     pixel of a source at (xf, yf) displaced by (dx, dy)."""
     qx = clamp_b(np.floor(dx + (xf + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
     qy = clamp_b(np.floor(dy + (yf + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
-    return np.int64(qy), np.int64(qx)
+    # (through int32: AVX2 has no vector float -> int64 conversion, see field.half_bits)
+    return np.int64(np.int32(qy)), np.int64(np.int32(qx))
 
 
 @njit(**INLINE)
