@@ -67,8 +67,8 @@ def _flat_coords(fx, fy, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h):
                                           hm1)
     x0 = I32(x0f)
     y0 = I32(y0f)
-    xin = x0 + I32(1) < w
-    yin = y0 + I32(1) < h
+    xin = x0f < wm1  # x0 + 1 < w (as in bil_taps: no 64-bit compares)
+    yin = y0f < hm1
     nw = s * e
     ne = s * tx if xin else F32(0.0)
     sw = ty * e if yin else F32(0.0)
@@ -178,8 +178,10 @@ def bil_taps(fx, fy, x, gxn_x, gyy, kx, ky, hw, hh, wm1, hm1, w, h, XA, XB, YA, 
                                           hm1)
     x0 = I32(x0f)
     y0 = I32(y0f)
-    xi = I32(1) if x0 + I32(1) < w else I32(0)
-    yi = I32(1) if y0 + I32(1) < h else I32(0)
+    # x0 + 1 < w, compared as floats (exact: integers below 2**24): in numba's integer
+    # arithmetic it is an int64 sum, and the 64-bit compares cost the AVX2 loop 10-15 %
+    xi = I32(1) if x0f < wm1 else I32(0)
+    yi = I32(1) if y0f < hm1 else I32(0)
     XA[x] = x0
     XB[x] = x0 + xi
     YA[x] = y0
