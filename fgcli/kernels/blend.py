@@ -262,24 +262,24 @@ def _warp_blend_rows(ya, yb, c1, d1, to1, c0, d0, to0, gxn, gyn, kx, ky, dt, has
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
         for x in range(w):
-            _taps_px(to1, v1, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+            _taps_px(to1, v1, 0, x, y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                      hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
         for blk in range(nb):
             bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                          I32(y * w), s1, w32, I32(0))
             nearest16(d1, w32, h32, JX, JY, I32(16 * blk), sd1, I32(0))
         for x in range(16 * nb, w):
-            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, 0, F32(I32(x)), yf, lo_y, hi_y, gxn[x], gyy,
                      kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         for x in range(w):
-            _taps_px(to0, v0, 0, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+            _taps_px(to0, v0, 0, x, y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                      hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
         for blk in range(nb):
             bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                          I32(y * w), s0, w32, I32(0))
             nearest16(d0, w32, h32, JX, JY, I32(16 * blk), sd0, I32(0))
         for x in range(16 * nb, w):
-            _warp_px(c0, d0, to0, s0, sd0, v0, x, y, 0, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+            _warp_px(c0, d0, to0, s0, sd0, v0, x, y, 0, F32(I32(x)), yf, lo_y, hi_y, gxn[x], gyy,
                      kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         # blend_kernel's three passes on the sample row 0
         if has_static:  # (versioned: _eq1_row)

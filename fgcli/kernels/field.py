@@ -406,7 +406,7 @@ def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB,
         for x in range(w):
             vx = smv_b(V0[x])
             vy = smv_b(V1[x])
-            xf = F32(x)
+            xf = F32(I32(x))
             ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) &
                          (vy >= lo_y) & (vy < hi_y))
             bil_taps(vx, vy, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
@@ -417,7 +417,7 @@ def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB,
     for x in range(16 * nb, w):
         vx = smv_b(V0[x])
         vy = smv_b(V1[x])
-        xf = F32(x)
+        xf = F32(I32(x))
         ins[x] = F32((vx >= F32(-0.5) - xf) & (vx < F32(w - 0.5) - xf) & (vy >= lo_y)
                      & (vy < hi_y))
         zero = (vx == F32(0.0)) & (vy == F32(0.0))
@@ -526,7 +526,7 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
                     V1[x] = smv_b(vec[1, yb, xb])
                     HR[x] = np.int32(_prio(hi[yb, xb], np.int64(0)))
                 for x in range(w):
-                    PX[x] = F32(x) + V0[x] * a1
+                    PX[x] = F32(I32(x)) + V0[x] * a1
             VC = V0 if c == 0 else V1
             yf = F32(y)
             for x in range(w):
@@ -614,7 +614,7 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
             yf = F32(y)
             for x in range(w):
                 KY[x] = _pack(np.int32(prio[y, x]), smv_b(vc[y, x]))
-                PX[x] = F32(x) + smv_b(vec[0, y, x]) * a1
+                PX[x] = F32(I32(x)) + smv_b(vec[0, y, x]) * a1
                 PY[x] = yf + smv_b(vec[1, y, x]) * a1
             _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
 
@@ -644,7 +644,7 @@ def field_walk_prio_kernel(vec, prio, dist, a1, steps, buf0, buf1, sb0, sb1):
                     continue
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
-                px = F32(x) + vx * a1
+                px = F32(I32(x)) + vx * a1
                 py = F32(y) + vy * a1
                 cl = F32(1e-6) if di < F32(1e-6) else di
                 d0 = vx / cl

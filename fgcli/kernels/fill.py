@@ -8,6 +8,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import F32, INF, INLINE, KERNEL, bits, clamp_b, sdepth_b, smv_b
 
+I32 = np.int32
+
 # 3x3 neighbours, row-major, centre included (index 4)
 DY9 = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1], dtype=np.int64)
 DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
@@ -62,7 +64,7 @@ def _nearest_candidate(D, V, sa, sb, sc, x, f1):
 def _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h, wm1, hm1):
     """fill_extrap_holes at hole (x, y): (to1 x, to1 y, depth, to0 x, to0 y), to0 zero
     when not has0."""
-    xf = F32(x)
+    xf = F32(I32(x))
     mx = smv_b(mv1[0, y, x]) * alpha
     my = smv_b(mv1[1, y, x]) * alpha
     sx = xf + mx

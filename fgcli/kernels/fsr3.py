@@ -136,7 +136,7 @@ def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, thre
         yf = F32(y)
         if WINDOW16:  # the taps into row buffers, fetched 16 pixels at a time, then the sums
             for x in range(w):
-                _mask_taps(F32(x) + smv_b(vec[0, y, x]) * a, yf + smv_b(vec[1, y, x]) * a, x,
+                _mask_taps(F32(I32(x)) + smv_b(vec[0, y, x]) * a, yf + smv_b(vec[1, y, x]) * a, x,
                            w32, h32, wm1, hm1, XA, XB, YA, YB)
             for blk in range(nblk):
                 taps16(depth_prev, w32, h32, XA, XB, YA, YB, I32(16 * blk), T)
@@ -146,11 +146,11 @@ def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, thre
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
                 zt = sdepth_b(depth_t[y, x])
-                acc = _tap_mask_t(T, x, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32, wm1,
+                acc = _tap_mask_t(T, x, F32(I32(x)) + vx * a, yf + vy * a, zt, thr, w32, h32, wm1,
                                   hm1)
                 mp[y, x] = F32(acc >= threshold)
             for x in range(w):
-                _mask_taps(F32(x) - smv_b(vec[0, y, x]) * b, yf - smv_b(vec[1, y, x]) * b, x,
+                _mask_taps(F32(I32(x)) - smv_b(vec[0, y, x]) * b, yf - smv_b(vec[1, y, x]) * b, x,
                            w32, h32, wm1, hm1, XA, XB, YA, YB)
             for blk in range(nblk):
                 taps16(depth1, w32, h32, XA, XB, YA, YB, I32(16 * blk), T)
@@ -160,7 +160,7 @@ def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, thre
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
                 zt = sdepth_b(depth_t[y, x])
-                acc = _tap_mask_t(T, x, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
+                acc = _tap_mask_t(T, x, F32(I32(x)) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
                                   hm1)
                 mc[y, x] = F32(acc >= threshold)
         else:
@@ -168,14 +168,14 @@ def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, thre
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
                 zt = sdepth_b(depth_t[y, x])
-                acc = _tap_mask(depth_prev, F32(x) + vx * a, yf + vy * a, zt, thr, w32, h32,
+                acc = _tap_mask(depth_prev, F32(I32(x)) + vx * a, yf + vy * a, zt, thr, w32, h32,
                                 wm1, hm1)
                 mp[y, x] = F32(acc >= threshold)
             for x in range(w):
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
                 zt = sdepth_b(depth_t[y, x])
-                acc = _tap_mask(depth1, F32(x) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
+                acc = _tap_mask(depth1, F32(I32(x)) - vx * b, yf - vy * b, zt, thr, w32, h32, wm1,
                                 hm1)
                 mc[y, x] = F32(acc >= threshold)
 
@@ -269,35 +269,35 @@ def _interp_game_rows(ya, yb, c0, c1, vec, mask_prev, mask_cur, has_of, a, na, n
             for x in range(w):
                 rx = smv_b(vec[0, y, x]) * a
                 ry = smv_b(vec[1, y, x]) * a
-                in0[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+                in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
                 bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
                          YA, YB, WT, Z)
             for blk in range(nblk):
                 bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                              I32(y * w), P, w32, I32(0))
             for x in range(16 * nblk, w):
-                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(x),
+                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
                         lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
             for x in range(w):
                 rx = smv_b(vec[0, y, x]) * na
                 ry = smv_b(vec[1, y, x]) * na
-                in1[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+                in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
                 bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
                          YA, YB, WT, Z)
             for blk in range(nblk):
                 bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                              I32(y * w), C, w32, I32(0))
             for x in range(16 * nblk, w):
-                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(x),
+                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
                         lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
         else:
             for x in range(w):
                 in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x,
-                                     y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+                                     y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                                      hm1, w32, h32, hw32, P, x))
             for x in range(w):
                 in1[x] = F32(_sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na,
-                                     x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
+                                     x, y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
                                      wm1, hm1, w32, h32, hw32, C, x))
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
@@ -385,7 +385,7 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
                              I32(y * w), Po, w32, I32(0))
             for x in range(16 * nblk, w):
                 _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                         hw32, Po, x)
             for x in range(w):
                 bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
@@ -395,16 +395,16 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
                              I32(y * w), Co, w32, I32(0))
             for x in range(16 * nblk, w):
                 _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                         hw32, Co, x)
         else:
             for x in range(w):
                 _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                         hw32, Po, x)
             for x in range(w):
                 _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                        F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                         hw32, Co, x)
         for x in range(w):
             s_of = _similarity(Po, Co, x, eps, eps2)
@@ -442,26 +442,26 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
         for x in range(w):
             rx = smv_b(vec[0, y, x]) * a
             ry = smv_b(vec[1, y, x]) * a
-            in0[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+            in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
             bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
                      YA, YB, WT, Z)
         for blk in range(nblk):
             bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                          I32(y * w), P, w32, I32(0))
         for x in range(16 * nblk, w):
-            _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(x),
+            _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
                     lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
         for x in range(w):
             rx = smv_b(vec[0, y, x]) * na
             ry = smv_b(vec[1, y, x]) * na
-            in1[x] = F32(_inside(rx, ry, F32(x), lo_y, hi_y, w32))
+            in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
             bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
                      YA, YB, WT, Z)
         for blk in range(nblk):
             bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
                          I32(y * w), C, w32, I32(0))
         for x in range(16 * nblk, w):
-            _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(x),
+            _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
                     lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
@@ -484,7 +484,7 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
                          I32(y * w), P, w32, I32(0))
         for x in range(16 * nblk, w):
             _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                    F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                     hw32, P, x)
         for x in range(w):
             bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
@@ -494,7 +494,7 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
                          I32(y * w), C, w32, I32(0))
         for x in range(16 * nblk, w):
             _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                    F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                    F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
                     hw32, C, x)
         for x in range(w):
             s_of = _similarity(P, C, x, eps, eps2)
@@ -558,7 +558,7 @@ def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
             if z == INF:
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
-                xf = F32(x)
+                xf = F32(I32(x))
                 z0 = sdepth_b(_nearest_depth32(depth0, sflow_b(vx * a), sflow_b(vy * a), xf,
                                                yf, wm1, hm1, w32))
                 z1 = sdepth_b(_nearest_depth32(depth1, sflow_b(vx * na), sflow_b(vy * na), xf,

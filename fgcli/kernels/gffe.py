@@ -167,7 +167,7 @@ def offsets_kernel(X, V, P, hw, hh, out, dn):
         for x in range(w):
             qx, qy, d, o = _project_px(X[0, y, x], X[1, y, x], X[2, y, x], X[3, y, x], V, P,
                                        hw, hh)
-            dx = qx - (F32(x) + HALF)
+            dx = qx - (F32(I32(x)) + HALF)
             dy = qy - yh
             out[0, y, x] = -(dx if o else OFF)
             out[1, y, x] = -(dy if o else OFF)
@@ -526,7 +526,7 @@ def bg_resolve_kernel(s0, d0, s1, d1, sc2, scf, hole, col0, col1, bil0, bil1, ou
             out_d[y, x] = (db if t1 else da) if f else inf_
             sx = ((F32(bx) + HALF) * scf) if t1 else (F32(ax) + HALF)
             sy = ((F32(by) + HALF) * scf) if t1 else (F32(ay) + HALF)
-            mx = sx - (F32(x) + HALF)
+            mx = sx - (F32(I32(x)) + HALF)
             my = sy - yh
             out_m[0, y, x] = mx if f else ZERO
             out_m[1, y, x] = my if f else ZERO
@@ -551,7 +551,7 @@ def _entering_px(mv1, depth1, depth1f, a, behind, entering, x, y, yh, wf, hf, wm
     """entering_surface's test at (x, y): 1 where the surface goes off-screen (or, behind,
     comes from behind a nearer one) and is nearer than ``dlim`` allows, else 0. depth1f:
     depth1's flat view (a flat pixel index reads it without a division)."""
-    xh = F32(x) + HALF
+    xh = F32(I32(x)) + HALF
     m0 = smv_b(mv1[0, y, x])
     m1 = smv_b(mv1[1, y, x])
     sx = xh + a * m0
@@ -574,7 +574,7 @@ def _bg_fill_px(s0, d0, s1, d1, sc2, scf, col0, col1, bil0, bil1, color, depth, 
     """bg_fill_kernel at (x, y), tk: _entering_px's value there. inplace: out_c, out_d,
     out_m are color, depth, mv themselves (never read here then), written where filled."""
     xx = (np.int64(x) >> 1) if sc2 else np.int64(x)
-    xh = F32(x) + HALF
+    xh = F32(I32(x)) + HALF
     sa = s0[y, x]
     da = d0[y, x]
     sb = s1[yy, xx]
@@ -754,7 +754,7 @@ def bg_bilinear_kernel(code, s0, s1, l0c, l0d, l0v, px0, py0, l1c, l1d, l1v, px1
             c = code[y, x]
             if c == U0:
                 continue
-            qx = F32(x) + HALF
+            qx = F32(I32(x)) + HALF
             if c == np.uint8(1):
                 _sample_layer_px(l0c, l0d, l0v, px0, py0, max(s0[y, x], np.int64(0)), qx, qy,
                                  tol, out_c, y, x)
@@ -1122,7 +1122,7 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
             dq = depth[y, x]
             t = (valid[y, x] == U0) & o & inside & (s >= dq * keep)
             took[y, x] = np.uint8(1) if t else U0
-            flow[0, y, x] = (sx - (F32(x) + HALF)) if t else ZERO
+            flow[0, y, x] = (sx - (F32(I32(x)) + HALF)) if t else ZERO
             flow[1, y, x] = (sy - yh) if t else ZERO
 
 
@@ -1179,7 +1179,7 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
             vv = valid[y, x] != U0
             t = (not vv) & o & inside & (s >= dq * keep)
             took[y, x] = np.uint8(1) if t else U0
-            f0 = (sx - (F32(x) + HALF)) if t else ZERO
+            f0 = (sx - (F32(I32(x)) + HALF)) if t else ZERO
             f1 = (sy - yh) if t else ZERO
             flow[0, y, x] = f0
             flow[1, y, x] = f1
@@ -1224,7 +1224,7 @@ def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
         for x in range(w):
             mx = smv_b(mv1[0, y, x]) * a
             my = smv_b(mv1[1, y, x]) * a
-            sx = F32(x) + mx
+            sx = F32(I32(x)) + mx
             sy = yf + my
             inside = (sx >= lo) & (sx < hx) & (sy >= lo) & (sy < hy)
             ix = np.int64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
@@ -1285,7 +1285,7 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
         yc = F32(y) + HALF
         for x in range(w):
             qx, qy, _, ok = _project_px(o0[x], o1[x], o2[x], o3[x], V, P, hw, hh)
-            a = (F32(x) + HALF) + smv_b(mv1[0, y, x])
+            a = (F32(I32(x)) + HALF) + smv_b(mv1[0, y, x])
             b = yc + smv_b(mv1[1, y, x])
             xp[y, x] = a
             yp[y, x] = b

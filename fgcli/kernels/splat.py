@@ -270,7 +270,7 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
                 yf = F32(y)
                 if quad:
                     for x in range(w):
-                        xf = F32(x)
+                        xf = F32(I32(x))
                         ax = smv_b(mv1[0, y, x])
                         ay = smv_b(mv1[1, y, x])
                         dx, dy = _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb,
@@ -281,7 +281,7 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
                         ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
                 else:
                     for x in range(w):
-                        xf = F32(x)
+                        xf = F32(I32(x))
                         dx = smv_b(mv1[0, y, x]) * ca
                         dy = smv_b(mv1[1, y, x]) * ca
                         qy[x], qx[x] = _target(dx, dy, xf, yf, w, h)

@@ -157,11 +157,11 @@ def warp_pixels_kernel(c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s1, sd1,
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
         for x in range(w):
-            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(I32(x)), yf, lo_y, hi_y, gxn[x], gyy,
                      kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         if two:
             for x in range(w):
-                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
+                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(I32(x)), yf, lo_y, hi_y, gxn[x],
                          gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
 
 
@@ -227,25 +227,25 @@ def _warp_window_rows(ya, yb, c1, d1, to1, c0, d0, to0, two, gxn, gyn, kx, ky, s
         hi_y = F32(h - 0.5) - yf
         ro = I32(y * w)
         for x in range(w):
-            _taps_px(to1, v1, y, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
+            _taps_px(to1, v1, y, x, y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1,
                      hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
         for b in range(nb):
             bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s1, hw32,
                          ro)
             nearest16(d1, w32, h32, JX, JY, I32(16 * b), sd1, ro)
         for x in range(16 * nb, w):
-            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x], gyy,
+            _warp_px(c1, d1, to1, s1, sd1, v1, x, y, y, F32(I32(x)), yf, lo_y, hi_y, gxn[x], gyy,
                      kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
         if two:
             for x in range(w):
-                _taps_px(to0, v0, y, x, y, F32(x), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
+                _taps_px(to0, v0, y, x, y, F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh,
                          wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z, JX, JY)
             for b in range(nb):
                 bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * b), ro, s0,
                              hw32, ro)
                 nearest16(d0, w32, h32, JX, JY, I32(16 * b), sd0, ro)
             for x in range(16 * nb, w):
-                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(x), yf, lo_y, hi_y, gxn[x],
+                _warp_px(c0, d0, to0, s0, sd0, v0, x, y, y, F32(I32(x)), yf, lo_y, hi_y, gxn[x],
                          gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32)
 
 
@@ -311,5 +311,5 @@ def mv_warp_kernel(img, depth, mv, scale, raw_depth_flow, gxn, gyn, kx, ky, out,
             rfy = sflow_b(my * scale)
             dx = rfx if raw_depth_flow else fx
             dy = rfy if raw_depth_flow else fy
-            dout[y, x] = _nearest_depth32(depth, dx, dy, F32(x), yf, wm1, hm1, w32)
+            dout[y, x] = _nearest_depth32(depth, dx, dy, F32(I32(x)), yf, wm1, hm1, w32)
 
