@@ -199,6 +199,14 @@ def clamp_b(v, lo, hi):
 
 
 @njit(**INLINE)
+def f2i64(v):
+    """np.int64(v) of a float32 v within +-2**31 (a clamped coordinate, the flat index of
+    a pixel of an image below 2**31 pixels: the same truncation), converted through
+    int32: AVX2 has no vector float -> int64 conversion, and each lane took a scalar one."""
+    return np.int64(np.int32(v))
+
+
+@njit(**INLINE)
 def sdepth_b(v):
     """sanitize_depth as selects."""
     r = F32(0.0) if v <= F32(0.0) else v

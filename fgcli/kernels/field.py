@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, ROWS, clamp_b, sdepth_b, smv_b, sval_b
+from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, f2i64, sdepth_b, smv_b,
+                                   sval_b)
 from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x1, fmin16, ld32, mad32, umax16
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
@@ -190,8 +191,8 @@ def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1, sb0, sb
                     kf = F32(k)
                     qx = pos[0, i] - d[0, i] * kf
                     qy = pos[1, i] - d[1, i] * kf
-                    xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-                    yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+                    xi = f2i64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+                    yi = f2i64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
                     if xi < 1 or xi > w or yi < 1 or yi > h:
                         continue
                     q = yi * w2 + xi
@@ -436,7 +437,7 @@ def _agreement(a, b, inside):
     b = (F32(0.0) if b < F32(0.0) else b) + F32(0.001)
     r = (a if a < b else b) / (b if a < b else a)
     r = F32(1.0) if r != r else r
-    lo = np.int64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
+    lo = f2i64(clamp_b(np.rint(r * F32(31.0)), F32(0.0), F32(31.0)))
     return lo if inside != F32(0.0) else np.int64(0)
 
 
@@ -659,8 +660,8 @@ def field_walk_prio_kernel(vec, prio, dist, a1, steps, buf0, buf1, sb0, sb1):
                     kf = F32(k)
                     qx = px - d0 * kf
                     qy = py - d1 * kf
-                    xi = np.int64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-                    yi = np.int64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+                    xi = f2i64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+                    yi = f2i64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
                     if xi < 1 or xi > w or yi < 1 or yi > h:
                         continue
                     q = yi * w2 + xi

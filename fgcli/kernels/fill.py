@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, INLINE, KERNEL, bits, clamp_b, sdepth_b, smv_b
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, bits, clamp_b, f2i64, sdepth_b,
+                                   smv_b)
 
 I32 = np.int32
 
@@ -71,8 +72,8 @@ def _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h, wm1, hm1):
     sy = yf + my
     inside = (sx >= F32(-0.5)) & (sx < F32(w - 0.5)) & (sy >= F32(-0.5)) & \
         (sy < F32(h - 0.5))
-    ix = np.int64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
-    iy = np.int64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
+    ix = f2i64(clamp_b(np.floor(sx + F32(0.5)), F32(0.0), wm1))
+    iy = f2i64(clamp_b(np.floor(sy + F32(0.5)), F32(0.0), hm1))
     ds = sdepth_b(depth1[iy, ix])
     do = sdepth_b(depth1[y, x])
     bg = inside & (not (ds < do * f1))
@@ -81,8 +82,8 @@ def _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h, wm1, hm1):
     ox = F32(0.0)
     oy = F32(0.0)
     if has0:
-        jx = np.int64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
-        jy = np.int64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
+        jx = f2i64(clamp_b(np.floor((xf + vx) + F32(0.5)), F32(0.0), wm1))
+        jy = f2i64(clamp_b(np.floor((yf + vy) + F32(0.5)), F32(0.0), hm1))
         ox = vx + smv_b(mv1[0, jy, jx])
         oy = vy + smv_b(mv1[1, jy, jx])
     return vx, vy, (ds if bg else do), ox, oy

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b, sdepth_b,
-                                   sflow_b, smv_b, sval_b)
+from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b, f2i64,
+                                   sdepth_b, sflow_b, smv_b, sval_b)
 from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
@@ -433,7 +433,7 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
                     d = ZERO if d < ZERO else d  # clamp_min(0) (-inf too)
                     inside = (use[y, x] != U0) & (tx >= ZERO) & (tx < wf) & (ty >= ZERO) & \
                         (ty < hf)
-                    q = np.int64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
+                    q = f2i64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
                     inside = inside & ((want[q if has_want else np.int64(0)] != U0) |
                                        (not has_want))
                     qs[x] = q if inside else np.int64(-1)
@@ -561,7 +561,7 @@ def _entering_px(mv1, depth1, depth1f, a, behind, entering, x, y, yh, wf, hf, wm
     ix = np.floor(sx)
     iy = np.floor(sy)
     inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
-    j = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+    j = f2i64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
     ds = _nan_inf_b(depth1f[j])
     off = off | (behind & inside & (ds < dq * KEEP3))
     return ONE if (entering & off & (dq > ZERO)) else ZERO
@@ -720,7 +720,7 @@ def _sample_layer_px(col, dep, valid, px, py, ss, qx, qy, tol, out, y, x):
             wx = (ONE - fx) if ox == 0 else fx
             tx = x0 + F32(ox)
             inside = (tx >= ZERO) & (tx < Wf) & (ty >= ZERO) & (ty < Hf)
-            j = np.int64(clamp_b(ty, ZERO, Hf - ONE) * Wf + clamp_b(tx, ZERO, Wf - ONE))
+            j = f2i64(clamp_b(ty, ZERO, Hf - ONE) * Wf + clamp_b(tx, ZERO, Wf - ONE))
             jy = j // W
             jx = j - jy * W
             dj = dep[jy, jx]
@@ -1114,7 +1114,7 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
             ix = np.floor(sx)
             iy = np.floor(sy)
             inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
-            j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
+            j = f2i64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
             s = d1f[j]
             s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
             s = FMAX if s > FMAX else s
@@ -1170,7 +1170,7 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
             ix = np.floor(sx)
             iy = np.floor(sy)
             inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
-            j = np.int64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
+            j = f2i64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
             s = d1f[j]
             s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
             s = FMAX if s > FMAX else s
@@ -1227,8 +1227,8 @@ def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
             sx = F32(I32(x)) + mx
             sy = yf + my
             inside = (sx >= lo) & (sx < hx) & (sy >= lo) & (sy < hy)
-            ix = np.int64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
-            iy = np.int64(clamp_b(np.floor(sy + HALF), ZERO, hm1))
+            ix = f2i64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
+            iy = f2i64(clamp_b(np.floor(sy + HALF), ZERO, hm1))
             ds = sdepth_b(depth1[iy, ix])
             do = sdepth_b(depth1[y, x])
             bg = inside & (not (ds < do * keep))
@@ -1296,7 +1296,7 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
             ix = np.floor(a)
             iy = np.floor(b)
             inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
-            idx[y, x] = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+            idx[y, x] = f2i64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
             use[y, x] = np.uint8(1) if (dyn & inside) else U0
         n = 0
         ur = use[y]
@@ -1351,8 +1351,8 @@ def _match_tap(ix, iy, t, w, h):
 
 @njit(**INLINE)
 def _match_base(xp, yp, w, h, y, x):
-    ix = np.int64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
-    iy = np.int64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
+    ix = f2i64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
+    iy = f2i64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
     return ix, iy
 
 
@@ -1606,7 +1606,7 @@ def col_case_kernel(px, py, dn, ok, far3, l0v, d1, tol, case1, case2):
             ix = np.floor(px[y, x])
             iy = np.floor(py[y, x])
             inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf) & (ok[y, x] != U0)
-            n = np.int64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
+            n = f2i64(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
             ny = _div(n, w)
             nx = n - ny * w
             av = l0v[ny, nx] != U0
@@ -1643,14 +1643,14 @@ def col_behind_kernel(px, py, dn, ok, l0d, l0v, d1, l1v, tol, sc, out):
             ix = np.floor(a)
             iy = np.floor(b)
             inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf) & (ok[y, x] != U0)
-            n = np.int64(clamp_b(iy, ZERO, hf - ONE) * wf + clamp_b(ix, ZERO, wf - ONE))
+            n = f2i64(clamp_b(iy, ZERO, hf - ONE) * wf + clamp_b(ix, ZERO, wf - ONE))
             av = l0vf[n] != U0
             ad = l0df[n] if av else d1f[n]
             d = dn[y, x]
             beh = inside & (d > ad * tol) & (av | (ad > ZERO))
             jx = np.floor(a / sc)
             jy = np.floor(b / sc)
-            m = np.int64(clamp_b(jy, ZERO, h2f - ONE) * w2f + clamp_b(jx, ZERO, w2f - ONE))
+            m = f2i64(clamp_b(jy, ZERO, h2f - ONE) * w2f + clamp_b(jx, ZERO, w2f - ONE))
             free = l1vf[m] == U0
             out[y, x] = np.uint8(1) if (beh & free) else U0
 
@@ -1697,7 +1697,7 @@ def splat_fill_sparse_kernel(px, py, sc, dn, sel, h, w, buf, pc, lc, ld, lv):
         d = INF if d != d else d
         d = ZERO if d < ZERO else d  # clamp_min(0) (-inf too)
         inside = (tx >= ZERO) & (tx < wf) & (ty >= ZERO) & (ty < hf)
-        q = np.int64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
+        q = f2i64(clamp_b(ty, ZERO, hm1) * wf + clamp_b(tx, ZERO, wm1))
         qs[i] = q if inside else np.int64(-1)
         ks[i] = (np.int64(np.float32(d).view(np.int32)) << 32) | s
         if inside:
