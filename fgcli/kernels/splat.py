@@ -11,7 +11,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, bits, clamp_b,
                                    sdepth_b, smv_b)
-from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, fetch16x2, fma, ld32, mad32
+from fgcli.kernels._intrin import (HAVE_WINDOW16, atomic_min_i64, fetch16x2, fma, ld32, mad32,
+                                   nearest16)
 
 I32 = np.int32
 WINDOW16 = HAVE_WINDOW16
@@ -162,35 +163,50 @@ def dilate3_kernel(depth, mv, dout, mvout):
 
 
 @njit(**INLINE)
-def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w, h):
-    """Quadratic displacement p_t - p1 of source (x, y) with sanitised vector a: frame 0's
-    vector b at the pixel nearest p1 + a (used only when p1 + a is inside, and with the
-    depth check, when frame 0's depth there agrees), else b = a. Selects only."""
+def _quad_src(ax, ay, xf, yf, w, h):
+    """The quadratic displacement's read of frame 0 for a source at (xf, yf) with sanitised
+    vector a: (p1 + a inside the frame, the column and row (int32) of the pixel nearest
+    p1 + a, clamped)."""
     use = (ax >= F32(-0.5) - xf) & (ax < F32(w - 0.5) - xf) & \
           (ay >= F32(-0.5) - yf) & (ay < F32(h - 0.5) - yf)
     ix = I32(clamp_b(np.floor(ax + (xf + F32(0.5))), F32(0.0), F32(w - 1)))
     iy = I32(clamp_b(np.floor(ay + (yf + F32(0.5))), F32(0.0), F32(h - 1)))
-    i = mad32(iy, I32(w), ix)  # 32-bit indexed loads (16-lane gathers)
-    bx = smv_b(ld32(mv0, i))
-    by = smv_b(ld32(mv0, mad32(I32(w), I32(h), i)))
-    # depth0 is depth1 itself when the check is off (a safe read; the result is unused)
-    d0s = sdepth_b(ld32(depth0, i))
-    d1s = sdepth_b(depth1[y, x])
+    return use, ix, iy
+
+
+@njit(**INLINE)
+def _quad_mix(ax, ay, b0, b1, d0, d1, use, use_d0, tol, ca, cb):
+    """Quadratic displacement p_t - p1 from the source's sanitised vector a, frame 0's raw
+    vector (b0, b1) and depth d0 read at _quad_src's pixel, and the source's raw depth d1:
+    b is used only when p1 + a is inside (use) and, with the depth check, when the depths
+    agree; else b = a. Selects only."""
+    d0s = sdepth_b(d0)
+    d1s = sdepth_b(d1)
     same = (d0s == d1s) | (abs(d0s - d1s) <= min(d0s, d1s) * tol)
     use = use & (same | (not use_d0))
-    bx = bx if use else ax
-    by = by if use else ay
+    bx = smv_b(b0) if use else ax
+    by = smv_b(b1) if use else ay
     return fma(ax, ca, bx * cb), fma(ay, ca, by * cb)
 
 
 @njit(**INLINE)
+def _disp_quad(x, y, xf, yf, ax, ay, mv0, depth0, depth1, ca, cb, use_d0, tol, w, h):
+    """_quad_src and _quad_mix for source (x, y), frame 0's values by 32-bit indexed
+    loads (depth0 is depth1 itself when the check is off: a safe read, the value unused)."""
+    use, ix, iy = _quad_src(ax, ay, xf, yf, w, h)
+    i = mad32(iy, I32(w), ix)
+    return _quad_mix(ax, ay, ld32(mv0, i), ld32(mv0, mad32(I32(w), I32(h), i)),
+                     ld32(depth0, i), depth1[y, x], use, use_d0, tol, ca, cb)
+
+
+@njit(**INLINE)
 def _target(dx, dy, xf, yf, w, h):
-    """Row and column (in the (H+2) x (W+2) buffer with an off-screen ring) of the target
-    pixel of a source at (xf, yf) displaced by (dx, dy)."""
+    """Flat index (int32; (H+2)(W+2) < 2**31) in the (H+2) x (W+2) buffer with an
+    off-screen ring of the target pixel of a source at (xf, yf) displaced by (dx, dy). (In
+    32-bit integers: AVX2 has no vector float -> int64 conversion, see field.half_bits.)"""
     qx = clamp_b(np.floor(dx + (xf + F32(0.5))), F32(-1.0), F32(w)) + F32(1.0)
     qy = clamp_b(np.floor(dy + (yf + F32(0.5))), F32(-1.0), F32(h)) + F32(1.0)
-    # (through int32: AVX2 has no vector float -> int64 conversion, see field.half_bits)
-    return np.int64(np.int32(qy)), np.int64(np.int32(qx))
+    return mad32(I32(qy), I32(w + 2), I32(qx))
 
 
 @njit(**INLINE)
@@ -244,7 +260,14 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
     half a band of its own band (its zone: zones of bands running together never overlap)
     takes a plain read-compare-write, any other is deferred to a last pass that uses an
     atomic minimum. An atomic per source serialises the cache misses (2-3x slower); the
-    minimum is unique, so the result never depends on thread timing."""
+    minimum is unique, so the result never depends on thread timing.
+
+    Per row, the sources' targets (flat, int32) and keys' high words go into row buffers
+    in a vectorised loop (32-bit: 8 lanes on AVX2, where int64 targets and keys held it at
+    4), the scatter loop composes the keys; quadratic, with the 16-lane fetches
+    (WINDOW16), frame 0's vectors and depths at p1 + a are fetched 16 sources at a time
+    (fetch16x2, nearest16; LLVM leaves a loop with gathers scalar). Captured 1080p
+    inputs, one process, against 1b20d30: quadratic 12.4 -> 9.2 ms, linear 6.7 -> 4.5."""
     h, w = depth1.shape
     w2 = w + 2
     nb = buf.shape[0]
@@ -253,6 +276,10 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
     bh = max(8, (h + 31) // 32)  # band height
     nband = (h + bh - 1) // bh
     half = bh // 2
+    w32 = I32(w)
+    h32 = I32(h)
+    hw32 = I32(h * w)
+    nblk = w // 16
     deferred = np.zeros(h * w, dtype=np.uint8)
     dq = np.empty(h * w, dtype=np.int64)
     ndef = np.zeros(nband, dtype=np.int64)  # deferred sources per band (one thread each)
@@ -261,14 +288,45 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
             band = 2 * np.int64(bi) + phase
             ya = band * bh
             yb = min(h, ya + bh)
-            zlo = ya - half + 1  # buffer rows carry the +1 ring offset
-            zhi = yb + half + 1
-            qy = np.empty(w, dtype=np.int64)
-            qx = np.empty(w, dtype=np.int64)
-            ks = np.empty(w, dtype=np.int64)
+            # the zone's rows (buffer rows carry the +1 ring offset) as flat indices: a
+            # flat index qy * w2 + qx (0 <= qx < w2) lies within them iff qy does
+            zlo = (ya - half + 1) * w2
+            zhi = (yb + half + 1) * w2
+            # a row's targets (flat) and keys' high words: int32, eight vector lanes on AVX2
+            Q = np.empty(w, dtype=np.int32)
+            KH = np.empty(w, dtype=np.int32)
+            if WINDOW16:
+                JX = np.empty(w, dtype=np.int32)
+                JY = np.empty(w, dtype=np.int32)
+                U = np.empty(w, dtype=np.int32)
+                T = np.empty((3, w), dtype=np.float32)
             for y in range(ya, yb):
                 yf = F32(y)
-                if quad:
+                if WINDOW16 and quad:  # frame 0's reads into row buffers, 16 per fetch
+                    for x in range(w):
+                        use, JX[x], JY[x] = _quad_src(smv_b(mv1[0, y, x]), smv_b(mv1[1, y, x]),
+                                                      F32(I32(x)), yf, w, h)
+                        U[x] = I32(1) if use else I32(0)
+                    for blk in range(nblk):
+                        fetch16x2(mv0, hw32, w32, h32, JX, JY, I32(16 * blk), T, I32(0), w32)
+                        if use_d0:  # (NaN read as +inf: the same after sdepth_b)
+                            nearest16(depth0, w32, h32, JX, JY, I32(16 * blk), T, I32(2 * w))
+                    for x in range(16 * nblk, w):
+                        i = mad32(JY[x], w32, JX[x])
+                        T[0, x] = ld32(mv0, i)
+                        T[1, x] = ld32(mv0, mad32(hw32, I32(1), i))
+                        T[2, x] = ld32(depth0, i)
+                    for x in range(w):
+                        xf = F32(I32(x))
+                        ax = smv_b(mv1[0, y, x])
+                        ay = smv_b(mv1[1, y, x])
+                        dx, dy = _quad_mix(ax, ay, T[0, x], T[1, x], T[2, x], depth1[y, x],
+                                           U[x] != I32(0), use_d0, tol, ca, cb)
+                        disp[0, y, x] = dx
+                        disp[1, y, x] = dy
+                        Q[x] = _target(dx, dy, xf, yf, w, h)
+                        KH[x] = bits(sdepth_b(depth1[y, x]))
+                elif quad:
                     for x in range(w):
                         xf = F32(I32(x))
                         ax = smv_b(mv1[0, y, x])
@@ -277,20 +335,22 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
                                             use_d0, tol, w, h)
                         disp[0, y, x] = dx  # the resolve reads it back at the winner
                         disp[1, y, x] = dy
-                        qy[x], qx[x] = _target(dx, dy, xf, yf, w, h)
-                        ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
+                        Q[x] = _target(dx, dy, xf, yf, w, h)
+                        KH[x] = bits(sdepth_b(depth1[y, x]))
                 else:
                     for x in range(w):
                         xf = F32(I32(x))
                         dx = smv_b(mv1[0, y, x]) * ca
                         dy = smv_b(mv1[1, y, x]) * ca
-                        qy[x], qx[x] = _target(dx, dy, xf, yf, w, h)
-                        ks[x] = (np.int64(bits(sdepth_b(depth1[y, x]))) << 32) | (y << 16) | x
+                        Q[x] = _target(dx, dy, xf, yf, w, h)
+                        KH[x] = bits(sdepth_b(depth1[y, x]))
+                yk = y << 16
                 for x in range(w):
-                    q = qy[x] * w2 + qx[x]
-                    if qy[x] >= zlo and qy[x] < zhi:
-                        if ks[x] < buf[q]:
-                            buf[q] = ks[x]
+                    q = np.int64(Q[x])
+                    if q >= zlo and q < zhi:
+                        k = (np.int64(KH[x]) << 32) | yk | x
+                        if k < buf[q]:
+                            buf[q] = k
                     else:
                         deferred[y * w + x] = 1
                         dq[y * w + x] = q
