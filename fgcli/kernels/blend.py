@@ -76,8 +76,8 @@ def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_
     thr_static = F32(1e-3)
     e0 = sdepth_b(d0[ys, x])
     e1 = sdepth_b(d1[ys, x])
-    p0 = np.int32(v0[ys, x] != 0)
-    p1 = np.int32(v1[ys, x] != 0)
+    p0 = np.int32(v0[ys, x] != np.uint8(0))
+    p1 = np.int32(v1[ys, x] != np.uint8(0))
     agree = _agree_i(e0, e1, td)
     take0 = np.int32(e0 > e1)
     if has_dt:
@@ -85,26 +85,29 @@ def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_
         m0 = _agree_i(e0, t, td)
         m1 = _agree_i(e1, t, td)
         take0 = m0 if m0 != m1 else take0
-    dis = p0 & p1 & (one - agree)
-    pick0 = (dis & take0) | (p0 & (one - p1))
-    pick1 = (dis & (one - take0)) | (p1 & (one - p0))
-    none = one - (p0 | p1)
+    # (each flag re-typed int32: numba computes int32 - int32 in int64, and the loop ran
+    # its flags' selects and compares on four 64-bit lanes)
+    dis = I32(p0 & p1 & I32(one - agree))
+    pick0 = I32((dis & take0) | (p0 & I32(one - p1)))
+    pick1 = I32((dis & I32(one - take0)) | (p1 & I32(one - p0)))
+    none = I32(one - (p0 | p1))
     static = np.int32(0)
     if has_static:
-        static = np.int32((mvalid[y, x] != 0) &
+        static = np.int32((mvalid[y, x] != np.uint8(0)) &
                           (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) &
                           (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static))
-    mid = (one - (pick0 | pick1 | none)) & agree & np.int32(endpoint == 0) & (one - static)
+    mid = I32(I32(one - (pick0 | pick1 | none)) & agree & np.int32(endpoint == 0) &
+              I32(one - static))
     eqc = np.int32((sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) &
                    (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) &
                    (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x])))
     wt = a
-    wt = near_w if ((mid & eqc) | none) != 0 else wt
-    wt = F32(0.0) if pick0 != 0 else wt
-    wt = F32(1.0) if pick1 != 0 else wt
-    take_d0 = pick0 | ((agree | none) & (one - pick1) & np.int32(near_w == F32(0.0)))
-    out_d[y, x] = e0 if take_d0 != 0 else e1
-    return wt, mid & (one - eqc)
+    wt = near_w if I32((mid & eqc) | none) != np.int32(0) else wt
+    wt = F32(0.0) if pick0 != np.int32(0) else wt
+    wt = F32(1.0) if pick1 != np.int32(0) else wt
+    take_d0 = I32(pick0 | ((agree | none) & I32(one - pick1) & np.int32(near_w == F32(0.0))))
+    out_d[y, x] = e0 if take_d0 != np.int32(0) else e1
+    return wt, I32(mid & I32(one - eqc))
 
 
 @njit(**INLINE)
@@ -183,10 +186,10 @@ def _eq1_row(c0, c1, d0, d1, v0, v1, ys, y, dt, has_dt, mvalid, to1, to0, has_st
         wt, nd = _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0,
                          has_static, a, near_w, td, endpoint, out_d)
         sure, sure_not = _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej)
-        wts[x] = near_w if (nd & sure) != 0 else wt
-        u = nd & (np.int32(1) - (sure | sure_not))
+        wts[x] = near_w if (nd & sure) != np.int32(0) else wt
+        u = I32(nd & I32(np.int32(1) - (sure | sure_not)))
         need[x] = np.uint8(u)
-        nn += u
+        nn = I32(nn + u)
     return nn
 
 
