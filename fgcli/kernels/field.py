@@ -690,15 +690,18 @@ def length_kernel(mv, ss):
 def half_value(b):
     """The float32 value of binary16 bits b (0..0xFFFF), then NaN -> 0 and +-inf ->
     +-65504 (unpack_vector_field's nan_to_num); exact, as torch's conversion."""
-    sign = (b >> 15) & 1
-    e = (b >> 10) & 0x1F
-    m = b & 0x3FF
+    # (fields re-typed int32: numba computes integer operations in int64, and the unpacking
+    # loops ran on 64-bit lanes)
+    b = I32(b)
+    sign = I32((b >> 15) & 1)
+    e = I32((b >> 10) & 0x1F)
+    m = I32(b & 0x3FF)
     sub = F32(m) * F32(5.960464477539063e-08)  # m * 2**-24, exact
     nrm = np.int32(((e + 112) << 23) | (m << 13)).view(np.float32)
-    v = sub if e == 0 else nrm
-    v = F32(65504.0) if e == 31 else v
-    v = -v if sign == 1 else v
-    return F32(0.0) if (e == 31) & (m != 0) else v
+    v = sub if e == I32(0) else nrm
+    v = F32(65504.0) if e == I32(31) else v
+    v = -v if sign == I32(1) else v
+    return F32(0.0) if (e == I32(31)) & (m != I32(0)) else v
 
 
 @njit(**KERNEL)
@@ -729,8 +732,8 @@ def field_fill_prep_kernel(field, o, out, hout, valid, lev1, nh):
                 i = mad32(I32(x), I32(1), b)
                 f0 = ld32(field, i)
                 f1 = ld32(field, mad32(plane, I32(1), i))
-                p = (f1 >> 16) & 0xFFFF
-                ok = p > 0
+                p = I32((f1 >> 16) & 0xFFFF)
+                ok = p > I32(0)
                 m = F32(ok)
                 out[0, y, x] = half_value(f0 & 0xFFFF) * m
                 out[1, y, x] = half_value(f1 & 0xFFFF) * m
