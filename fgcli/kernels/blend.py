@@ -46,9 +46,9 @@ def _enc(v, table, base):
 
 
 @njit(**INLINE)
-def _agree_i(x, y, t):
-    """fgcli.ops.blend._agree (x == y or |x - y| <= min(x, y) t) as an int32 flag (0 / 1)."""
-    return np.int32((x == y) | (abs(x - y) <= min(x, y) * t))
+def _agree_b(x, y, t):
+    """fgcli.ops.blend._agree (x == y or |x - y| <= min(x, y) t) as a bool."""
+    return (x == y) | (abs(x - y) <= min(x, y) * t)
 
 
 @njit(**INLINE)
@@ -57,57 +57,56 @@ def _lerp_b(a, b, w):
     return fma(w, b - a, a) if abs(w) < F32(0.5) else fma(w - F32(1.0), b - a, b)
 
 
-# The Eq. 1 helpers keep every flag an int32 0 / 1, and the kernels read the valid masks
-# as uint8: numba's parfor alias analysis counts a bool variable that is copied (a helper's
-# bool result, a bool chosen by a ternary, a read of a bool array) as a possible array
-# alias, and one such variable drops noalias from every array argument of the kernel, so
-# LLVM leaves its gather loops scalar (a warp + blend kernel tried this stop ran 1.5x
-# slower so). With noalias, LLVM vectorises everything it can, so blend_kernel lists the
-# few pixels its table test needs first (a scalar compaction): a loop over the row that
-# tests each pixel was vectorised too (masked table gathers at every pixel), 2x slower.
+# The Eq. 1 helpers run only inside ROWS functions (_blend_rows, _warp_blend_rows), which
+# numba compiles with noalias arrays and no parfor alias analysis, so their flags are
+# bools: LLVM keeps them as i1 lanes. As int32 flags they ran on 64-bit lanes (numba
+# computes int32 & int32 and int32 - int32 in int64, and the selects and compares of the
+# widened values stayed so: the first pass's vector loop worked on 38 <8 x i64> values).
+# In a parallel loop's body the parfor analysis would count a copied bool as a possible
+# array alias and drop noalias from every array (a warp + blend kernel tried so ran 1.5x
+# slower): there flags stay int32. blend_kernel lists the few pixels
+# its table test needs first (a scalar compaction): a loop over the row that tests each
+# pixel was vectorised too (masked table gathers at every pixel), 2x slower.
 @njit(**INLINE)
 def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_static,
             a, near_w, td, endpoint, out_d):
     """Eq. 1 at pixel x of sample row ``ys`` (c0, c1 (3, ., W), d0, d1, v0, v1 (., W): the
     warped samples, v0 / v1 uint8) and frame row ``y`` (dt, mvalid (uint8), to1, to0: full
     frames), except the brightness test: writes the depth, returns (weight, needs the
-    brightness test as int32 0 / 1)."""
-    one = np.int32(1)
+    brightness test)."""
+    u0 = np.uint8(0)
     thr_static = F32(1e-3)
     e0 = sdepth_b(d0[ys, x])
     e1 = sdepth_b(d1[ys, x])
-    p0 = np.int32(v0[ys, x] != np.uint8(0))
-    p1 = np.int32(v1[ys, x] != np.uint8(0))
-    agree = _agree_i(e0, e1, td)
-    take0 = np.int32(e0 > e1)
+    p0 = v0[ys, x] != u0
+    p1 = v1[ys, x] != u0
+    agree = _agree_b(e0, e1, td)
+    take0 = e0 > e1
     if has_dt:
         t = sdepth_b(dt[y, x])
-        m0 = _agree_i(e0, t, td)
-        m1 = _agree_i(e1, t, td)
+        m0 = _agree_b(e0, t, td)
+        m1 = _agree_b(e1, t, td)
         take0 = m0 if m0 != m1 else take0
-    # (each flag re-typed int32: numba computes int32 - int32 in int64, and the loop ran
-    # its flags' selects and compares on four 64-bit lanes)
-    dis = I32(p0 & p1 & I32(one - agree))
-    pick0 = I32((dis & take0) | (p0 & I32(one - p1)))
-    pick1 = I32((dis & I32(one - take0)) | (p1 & I32(one - p0)))
-    none = I32(one - (p0 | p1))
-    static = np.int32(0)
+    dis = p0 & p1 & (not agree)
+    pick0 = (dis & take0) | (p0 & (not p1))
+    pick1 = (dis & (not take0)) | (p1 & (not p0))
+    none = not (p0 | p1)
+    static = False
     if has_static:
-        static = np.int32((mvalid[y, x] != np.uint8(0)) &
-                          (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) &
-                          (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static))
-    mid = I32(I32(one - (pick0 | pick1 | none)) & agree & np.int32(endpoint == 0) &
-              I32(one - static))
-    eqc = np.int32((sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) &
-                   (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) &
-                   (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x])))
+        static = ((mvalid[y, x] != u0) &
+                  (max(abs(to1[0, y, x]), abs(to1[1, y, x])) < thr_static) &
+                  (max(abs(to0[0, y, x]), abs(to0[1, y, x])) < thr_static))
+    mid = (not (pick0 | pick1 | none)) & agree & (endpoint == 0) & (not static)
+    eqc = ((sval_b(c0[0, ys, x]) == sval_b(c1[0, ys, x])) &
+           (sval_b(c0[1, ys, x]) == sval_b(c1[1, ys, x])) &
+           (sval_b(c0[2, ys, x]) == sval_b(c1[2, ys, x])))
     wt = a
-    wt = near_w if I32((mid & eqc) | none) != np.int32(0) else wt
-    wt = F32(0.0) if pick0 != np.int32(0) else wt
-    wt = F32(1.0) if pick1 != np.int32(0) else wt
-    take_d0 = I32(pick0 | ((agree | none) & I32(one - pick1) & np.int32(near_w == F32(0.0))))
-    out_d[y, x] = e0 if take_d0 != np.int32(0) else e1
-    return wt, I32(mid & I32(one - eqc))
+    wt = near_w if ((mid & eqc) | none) else wt
+    wt = F32(0.0) if pick0 else wt
+    wt = F32(1.0) if pick1 else wt
+    take_d0 = pick0 | ((agree | none) & (not pick1) & (near_w == F32(0.0)))
+    out_d[y, x] = e0 if take_d0 else e1
+    return wt, mid & (not eqc)
 
 
 @njit(**INLINE)
@@ -146,7 +145,7 @@ def _slope_hi(m):
 
 @njit(**INLINE)
 def _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej):
-    """(surely similar, surely not) by the slope bounds, without the table (int32 0 / 1)."""
+    """(surely similar, surely not) by the slope bounds, without the table (bools)."""
     a0 = min(max(sval_b(c0[0, ys, x]), _LO), F32(1.0))
     a1 = min(max(sval_b(c0[1, ys, x]), _LO), F32(1.0))
     a2 = min(max(sval_b(c0[2, ys, x]), _LO), F32(1.0))
@@ -159,7 +158,7 @@ def _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej):
     hi = F32(1.055) * (_slope_hi(min(a1, b1)) * d1 +
                        F32(0.5) * (_slope_hi(min(a0, b0)) * d0 + _slope_hi(min(a2, b2)) * d2))
     lo = F32(1.055) * _P_LO * (d1 + F32(0.5) * (d0 + d2))
-    return np.int32(hi <= tb_acc), np.int32(lo >= tb_rej)
+    return hi <= tb_acc, lo >= tb_rej
 
 
 @njit(**INLINE)
@@ -176,21 +175,24 @@ def _out_px(c0, c1, k, ys, x, y, wt, endpoint, out_c):
 def _eq1_row(c0, c1, d0, d1, v0, v1, ys, y, dt, has_dt, mvalid, to1, to0, has_static, a,
              near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need):
     """The blend's first pass over a row (every case of Eq. 1 but the undecided brightness
-    tests): wts, need (uint8) and the depths of row y; returns how many pixels need the
-    table. The kernels call it once with has_static a literal True and once with False,
+    tests): wts, need (uint8) and the depths of row y; returns 1 when a pixel needs the
+    table, else 0. The kernels call it once with has_static a literal True and once with False,
     in the two arms of a branch: the static test's uint8 read under a runtime flag has no
     AVX2 masked load (AVX-512 has one), and LLVM kept the whole loop scalar for it (1080p,
     Zen 3: 24 -> 7 ms for this pass; blend_kernel 36 -> 16 ms)."""
-    nn = np.int32(0)
-    for x in range(d0.shape[1]):
+    w = d0.shape[1]
+    for x in range(w):
         wt, nd = _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0,
                          has_static, a, near_w, td, endpoint, out_d)
         sure, sure_not = _bright_bounds(c0, c1, ys, x, tb_acc, tb_rej)
-        wts[x] = near_w if (nd & sure) != np.int32(0) else wt
-        u = I32(nd & I32(np.int32(1) - (sure | sure_not)))
-        need[x] = np.uint8(u)
-        nn = I32(nn + u)
-    return nn
+        wts[x] = near_w if (nd & sure) else wt
+        need[x] = np.uint8(nd & (not (sure | sure_not)))
+    # (whether any pixel needs the table, in a loop of its own: a count in the loop above
+    # was an int64 reduction, which halved its vector width)
+    m = np.uint8(0)
+    for x in range(w):
+        m = max(m, need[x])
+    return m
 
 
 @njit(**ROWS)

@@ -1593,7 +1593,7 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
     nsky = np.empty(h, dtype=np.int64)
     xp, yp = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     use = np.empty((h, w), dtype=np.uint8)
-    idx = np.empty((h, w), dtype=np.int64)
+    idx = np.empty((h, w), dtype=np.int32)  # (flat pixel indices: below 2**31)
     nuse = np.empty(h, dtype=np.int64)
     hist_p_kernel(d1a, gx, gy, kx, ky, A, M, V, P, hw, hh, _a(mv1), F32(threshold * threshold),
                   pa, ss, nsky, xp, yp, use, idx, nuse, traj.numpy()[1:])
