@@ -286,13 +286,26 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             i += 1
     for py in prange(h):
         y = np.int64(py)
+        hx = np.empty(w, dtype=np.int32)
         if fix[y] != 0:
             for x in range(w):
                 depth[y, x] = sdepth_b(depth[y, x]) if valid[y, x] != 0 else INF
         if has_fb:  # every hole (filled ones are overwritten next, as the reference)
+            # the row's holes listed first (rows without one skipped after a vectorised
+            # test), then taken one by one: a loop over the row with the hole test
+            # inside was vectorised into masked loads and stores at every pixel, whose
+            # stalls cost ~5 ms per 1080p frame (holes: ~1 % of the pixels)
+            vr = valid[y]
+            m = np.uint8(1)
             for x in range(w):
-                if valid[y, x] != 0:
-                    continue
+                m = min(m, vr[x])
+            nh = 0
+            if m == 0:
+                for x in range(w):
+                    hx[nh] = np.int32(x)
+                    nh += np.int32(vr[x] == 0)
+            for j in range(nh):
+                x = np.int64(hx[j])
                 mx = smv_b(fb[0, y, x])
                 my = smv_b(fb[1, y, x])
                 to1[0, y, x] = mx * c1
