@@ -1543,38 +1543,42 @@ def bits_rank(d, top, rank, bounds, nch=4):
 # the previous layer 1's fragments behind layer 0 into free cells (col_behind_kernel), the
 # splats (splat_min_kernel) and their winners written into the layers (layer_fill_kernel).
 
-@njit(**KERNEL)
-def col_init_kernel(color1, depth1, static, d1, l0c, l0d, l0v):
-    """d1 = nan_to_num(depth1, nan=0) (+-inf -> +-float32 max); layer 0 = the usable
-    (d1 > 0, static) pixels' sanitised colour and d1, else 0 / +inf. Row views and an
-    int32 flag: with a bool flag and 3-d indexing the loop stayed scalar (7.3 -> 5.6 ms
-    per 1080p frame, Zen 3)."""
-    h, w = depth1.shape
-    for pr in prange(h):
-        y = np.int64(pr)
-        dr = depth1[y]
-        sr = static[y]
-        c0 = color1[0, y]
-        c1 = color1[1, y]
-        c2 = color1[2, y]
-        o0 = l0c[0, y]
-        o1 = l0c[1, y]
-        o2 = l0c[2, y]
-        dd = d1[y]
-        ld = l0d[y]
-        lv = l0v[y]
+@njit(**ROWS)
+def _col_init_rows(ya, yb, color1, depth1, static, d1, l0c, l0d, l0v):
+    """col_init_kernel's rows ya..yb. A ROWS body (arrays without aliases, no runtime
+    checks) with every load made before the selects: in the parallel loop's body the
+    vectorised loop was compiled, yet the pipeline ran its scalar twin, and the colour
+    read under the flag became a masked load."""
+    w = depth1.shape[1]
+    for y in range(ya, yb):
         for x in range(w):
-            v = dr[x]
+            v = depth1[y, x]
+            s = static[y, x]
+            c0 = color1[0, y, x]
+            c1 = color1[1, y, x]
+            c2 = color1[2, y, x]
             r = FMAX if v == INF else v
             r = -FMAX if v == -INF else r
             r = ZERO if v != v else r
-            dd[x] = r
-            u = np.int32(r > ZERO) & np.int32(sr[x] != U0)
-            o0[x] = sval_b(c0[x]) if u != np.int32(0) else ZERO
-            o1[x] = sval_b(c1[x]) if u != np.int32(0) else ZERO
-            o2[x] = sval_b(c2[x]) if u != np.int32(0) else ZERO
-            ld[x] = r if u != np.int32(0) else INF
-            lv[x] = np.uint8(u)
+            d1[y, x] = r
+            u = (r > ZERO) & (s != U0)
+            l0c[0, y, x] = sval_b(c0) if u else ZERO
+            l0c[1, y, x] = sval_b(c1) if u else ZERO
+            l0c[2, y, x] = sval_b(c2) if u else ZERO
+            l0d[y, x] = r if u else INF
+            l0v[y, x] = np.uint8(u)
+
+
+@njit(**KERNEL)
+def col_init_kernel(color1, depth1, static, d1, l0c, l0d, l0v):
+    """d1 = nan_to_num(depth1, nan=0) (+-inf -> +-float32 max); layer 0 = the usable
+    (d1 > 0, static) pixels' sanitised colour and d1, else 0 / +inf."""
+    h = depth1.shape[0]
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        _col_init_rows(ya, yb, color1, depth1, static, d1, l0c, l0d, l0v)
 
 
 @njit(**KERNEL)
