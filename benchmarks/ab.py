@@ -69,6 +69,26 @@ def export(rev: str) -> str:
     return base
 
 
+def blade_frames(size: str, times):
+    """The benchmark's frames: the bundled blade scene rendered at 1/4 of size (WxH) at
+    each (time, previous time) of times and upscaled (nearest; vectors scaled)."""
+    import torch
+
+    from fgcli.synth import load_scene, render
+
+    W, H = (int(v) for v in size.lower().split("x"))
+    scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"),
+                       size=(W // 4, H // 4))
+
+    def up(f):
+        def u(x, k=1.0):
+            return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
+        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
+                         normal=None, albedo=None, roughness=None, alpha=None)
+
+    return [up(render(scene, t, tp, spp=2)).replace(number=i) for i, (t, tp) in enumerate(times)]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("rev", help="the other version: a git revision of this checkout")
@@ -92,23 +112,12 @@ def main():
     import fgcli.pipeline as P_new
     import fgcli_ab.pipeline as P_old
     from fgcli.runner import RunState, check_device, make_ctx
-    from fgcli.synth import load_scene, render
     from fgcli_ab.runner import RunState as RunState_old, make_ctx as make_ctx_old
 
     check_device("cpu")
-    W, H = (int(v) for v in args.size.lower().split("x"))
-    scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"),
-                       size=(W // 4, H // 4))
     times = ([(2.0 + 0.5 * i, 1.0 + 0.5 * i) for i in range(args.repeat + 2)]
              if args.sequence else [(3.0, 2.0), (4.0, 3.0)])
-
-    def up(f):
-        def u(x, k=1.0):
-            return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
-                         normal=None, albedo=None, roughness=None, alpha=None)
-
-    seq = [up(render(scene, t, tp, spp=2)).replace(number=i) for i, (t, tp) in enumerate(times)]
+    seq = blade_frames(args.size, times)
     sides = {"old": (P_old, make_ctx_old, RunState_old), "new": (P_new, make_ctx, RunState)}
     print(f"| pipeline | mode | {args.rev} ms (min) | this checkout ms (min) | new / old |")
     print("|---|---|---|---|---|")

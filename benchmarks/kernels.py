@@ -30,30 +30,19 @@ import time
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # (before torch is imported)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 MODULES = ("blend", "field", "fill", "flow", "fsr3", "geom", "gffe", "pyramid", "scene",
            "splat", "warp")
 
 
 def frames(size: str):
-    """The two frames of benchmarks/stages.py (the blade scene at 1/4 size, upscaled)."""
-    import torch
+    """The two frames of benchmarks/stages.py and ab.py, with fgen's allocator set-up."""
+    from ab import blade_frames
 
     from fgcli.runner import check_device
-    from fgcli.synth import load_scene, render
 
     check_device("cpu")  # what fgen does at start-up (allocator tuning)
-    W, H = (int(v) for v in size.lower().split("x"))
-    scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"),
-                       size=(W // 4, H // 4))
-
-    def up(f):
-        def u(x, k=1.0):
-            return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
-                         normal=None, albedo=None, roughness=None, alpha=None)
-
-    return [up(render(scene, t, tp, spp=2)).replace(number=i)
-            for i, (t, tp) in enumerate([(3.0, 2.0), (4.0, 3.0)])]
+    return blade_frames(size, [(3.0, 2.0), (4.0, 3.0)])
 
 
 def runner(name: str, mode: str, seq):
@@ -144,7 +133,6 @@ def ab(args):
     import numpy as np
     import torch
 
-    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
     import ab as abmod
 
     base = abmod.export(args.rev)

@@ -64,9 +64,9 @@ def _lerp_b(a, b, w):
 # widened values stayed so: the first pass's vector loop worked on 38 <8 x i64> values).
 # In a parallel loop's body the parfor analysis would count a copied bool as a possible
 # array alias and drop noalias from every array (a warp + blend kernel tried so ran 1.5x
-# slower): there flags stay int32. blend_kernel lists the few pixels
-# its table test needs first (a scalar compaction): a loop over the row that tests each
-# pixel was vectorised too (masked table gathers at every pixel), 2x slower.
+# slower): there flags stay int32. blend_kernel lists the few pixels its table test needs
+# first (a scalar compaction): a loop over the row that tests each pixel was vectorised
+# too (masked table gathers at every pixel), 2x slower.
 @njit(**INLINE)
 def _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0, has_static,
             a, near_w, td, endpoint, out_d):
@@ -176,10 +176,10 @@ def _eq1_row(c0, c1, d0, d1, v0, v1, ys, y, dt, has_dt, mvalid, to1, to0, has_st
              near_w, td, tb_acc, tb_rej, endpoint, out_d, wts, need):
     """The blend's first pass over a row (every case of Eq. 1 but the undecided brightness
     tests): wts, need (uint8) and the depths of row y; returns 1 when a pixel needs the
-    table, else 0. The kernels call it once with has_static a literal True and once with False,
-    in the two arms of a branch: the static test's uint8 read under a runtime flag has no
-    AVX2 masked load (AVX-512 has one), and LLVM kept the whole loop scalar for it (1080p,
-    Zen 3: 24 -> 7 ms for this pass; blend_kernel 36 -> 16 ms)."""
+    table, else 0. The kernels call it once with has_static a literal True and once with
+    False, in the two arms of a branch: the static test's uint8 read under a runtime flag
+    has no AVX2 masked load (AVX-512 has one), and LLVM kept the whole loop scalar for it
+    (1080p, Zen 3: 24 -> 7 ms for this pass; blend_kernel 36 -> 16 ms)."""
     w = d0.shape[1]
     for x in range(w):
         wt, nd = _eq1_px(c0, c1, d0, d1, v0, v1, ys, x, y, dt, has_dt, mvalid, to1, to0,

@@ -294,7 +294,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             # the row's holes listed first (rows without one skipped after a vectorised
             # test), then taken one by one: a loop over the row with the hole test
             # inside was vectorised into masked loads and stores at every pixel, whose
-            # stalls cost ~5 ms per 1080p frame (holes: ~1 % of the pixels)
+            # stalls cost ~4 ms per 1080p frame (holes: ~1 % of the pixels)
             vr = valid[y]
             m = np.uint8(1)
             for x in range(w):
