@@ -34,6 +34,34 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
 
+def cpu_model() -> str:
+    """The CPU as /proc/cpuinfo names it, with its family / model numbers (a VM's model name
+    alone, e.g. "AMD EPYC", does not tell a Zen 3 from a Zen 5) and its widest vectors."""
+    info = {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if not line.strip():
+                    break  # the first CPU's block
+                k, _, v = line.partition(":")
+                info[k.strip()] = v.strip()
+    except OSError:
+        import platform
+
+        return platform.processor() or platform.machine()
+    flags = info.get("flags", "").split()
+    simd = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2"
+    return (f"{info.get('model name', '?')} (family {info.get('cpu family', '?')} model "
+            f"{info.get('model', '?')}, {simd})")
+
+
+def openmp_env() -> dict:
+    """The OpenMP wait settings the run used (torch's runtime, which numba's kernels share:
+    the spin after each parallel region changes every figure; docs/performance.md, stop
+    42)."""
+    return {k: os.environ.get(k, "(unset)") for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+
+
 def median_ms(fn, repeat):
     fn()  # warm-up
     xs = []
@@ -133,6 +161,9 @@ def main():
              f"{torch.get_num_threads()} threads")
     print(f"# {W}x{H}, torch {torch.__version__}, {where}; "
           f"{'a sequence (state carried), ' if args.sequence else ''}{source}")
+    if not cuda:
+        print(f"# {cpu_model()}; OpenMP: " + ", ".join(f"{k}={v}" for k, v in
+                                                       openmp_env().items()))
 
     def copy_frame():
         out = (f1.color.clone(), f1.depth.clone(), f1.mv.clone())
@@ -200,6 +231,7 @@ def main():
     result = {"size": [W, H], "sequence": bool(args.sequence), "frames": source,
               "threads": torch.get_num_threads(), "torch": torch.__version__,
               "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
+              "cpu": cpu_model(), "openmp": openmp_env(),
               "copy_ms": ref, "exr_write_ms": w_ms, "exr_read_ms": r_ms, "backends": backends,
               "kernel_load_ms": {"first_process": loads[0], "cached": loads[1],
                                  "cached_core": core_ms},

@@ -18,6 +18,10 @@ def test_stages_benchmark_sequence_mode(tmp_path):
     assert "a sequence (state carried)" in r.stdout
     j = json.loads(out.read_text())
     assert j["sequence"] is True
+    # what the figures depend on besides the code: the CPU and the OpenMP wait settings
+    assert j["cpu"] and ("family" in j["cpu"] or not os.path.exists("/proc/cpuinfo"))
+    assert j["openmp"]["OMP_WAIT_POLICY"] == os.environ.get("OMP_WAIT_POLICY", "PASSIVE")
+    assert set(j["openmp"]) == {"OMP_WAIT_POLICY", "GOMP_SPINCOUNT"}
     g = j["pipelines"]["gffe-extrap"]["extrap"]
     assert g["ms_per_frame"] > 0
     # the frames move (history tracked and layers collected every frame), mob-fgsr both modes
