@@ -394,18 +394,20 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
     hf = F32(h)
     for pr in prange(h):
         r = np.int64(pr) * w
+        br = buf[r:r + w]  # (row views: see bits_count_kernel)
         if has_want:
+            wr = want[r:r + w]
             nw = U0  # (a row without a want cell, most of them: one vectorised pass)
             for x in range(w):
-                nw |= want[r + x]
+                nw |= wr[x]
             if nw == U0:
                 continue
             for x in range(w):
-                if want[r + x] != U0:
-                    buf[r + x] = I64_MAX
+                if wr[x] != U0:
+                    br[x] = I64_MAX
         else:
             for x in range(w):
-                buf[r + x] = I64_MAX
+                br[x] = I64_MAX
     same = (hs == h) & (ws == w)
     bh = max(8, (hs + 31) // 32)  # band height
     nband = (hs + bh - 1) // bh
@@ -1488,11 +1490,12 @@ def bits_count_kernel(d, top, shift, mask, hist, bmin, bmax):
                 continue
             lo = big
             hi = np.int32(-1)
-            for i in range(s, e):
-                v = d[i]
+            ds = d[s:e]  # (a view: d[i] for i from s, of unknown sign, made gathers)
+            for i in range(e - s):
+                v = ds[i]
                 bv = np.float32(v).view(np.int32)
                 ok = (v > ZERO) & (v < INF) & ((top < 0) | ((bv >> 16) == top))
-                kb[i - s] = ((bv >> shift) & mask) if ok else np.int32(-1)
+                kb[i] = ((bv >> shift) & mask) if ok else np.int32(-1)
                 lo = min(lo, bv if ok else big)
                 hi = max(hi, bv if ok else np.int32(-1))
             if top < 0:

@@ -381,21 +381,22 @@ def splat_resolve_pixels_kernel(buf, depth1, mv1, disp, ca, quad, w0, to1, to0, 
     for py in prange(h):
         y = np.int64(py)
         r = (y + 1) * w2 + 1
+        br = buf[r:r + w]  # (a row view: see _splat_resolve_window_rows)
         if quad and w0:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, True, True, depth1, mv1, disp, ca, w32, hw32,
+                _resolve_px(br[x], x, y, True, True, depth1, mv1, disp, ca, w32, hw32,
                             to1, to0, dout, valid, source)
         elif quad:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, True, False, depth1, mv1, disp, ca, w32, hw32,
+                _resolve_px(br[x], x, y, True, False, depth1, mv1, disp, ca, w32, hw32,
                             to1, to0, dout, valid, source)
         elif w0:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, False, True, depth1, mv1, disp, ca, w32, hw32,
+                _resolve_px(br[x], x, y, False, True, depth1, mv1, disp, ca, w32, hw32,
                             to1, to0, dout, valid, source)
         else:
             for x in range(w):
-                _resolve_px(buf[r + x], x, y, False, False, depth1, mv1, disp, ca, w32, hw32,
+                _resolve_px(br[x], x, y, False, False, depth1, mv1, disp, ca, w32, hw32,
                             to1, to0, dout, valid, source)
 
 
@@ -439,9 +440,11 @@ def _splat_resolve_window_rows(ya, yb, buf, depth1, mv1, disp, ca, quad, w0, to1
     hw32 = I32(h * w)
     nb = w // 16
     for y in range(ya, yb):
-        r = (y + 1) * w2 + 1
+        # a row view: buf[r + x] with r of unknown sign (y runs from a chunk's bounds) keeps
+        # numba's negative-index wraparound inside the loop, and LLVM made the loads gathers
+        br = buf[(y + 1) * w2 + 1:(y + 2) * w2 - 1]
         for x in range(w):
-            _winner_px(buf[r + x], x, y, JX, JY)
+            _winner_px(br[x], x, y, JX, JY)
         for b in range(nb):
             fetch16x2(mv1, hw32, w32, h32, JX, JY, I32(16 * b), T, I32(0), w32)
             if quad:
@@ -455,19 +458,19 @@ def _splat_resolve_window_rows(ya, yb, buf, depth1, mv1, disp, ca, quad, w0, to1
                 T[3, x] = ld32(disp, mad32(hw32, I32(1), i))
         if quad and w0:
             for x in range(w):
-                _resolve_from(buf[r + x], x, y, True, True, T, ca, w32, to1, to0, dout,
+                _resolve_from(br[x], x, y, True, True, T, ca, w32, to1, to0, dout,
                               valid, source)
         elif quad:
             for x in range(w):
-                _resolve_from(buf[r + x], x, y, True, False, T, ca, w32, to1, to0, dout,
+                _resolve_from(br[x], x, y, True, False, T, ca, w32, to1, to0, dout,
                               valid, source)
         elif w0:
             for x in range(w):
-                _resolve_from(buf[r + x], x, y, False, True, T, ca, w32, to1, to0, dout,
+                _resolve_from(br[x], x, y, False, True, T, ca, w32, to1, to0, dout,
                               valid, source)
         else:
             for x in range(w):
-                _resolve_from(buf[r + x], x, y, False, False, T, ca, w32, to1, to0, dout,
+                _resolve_from(br[x], x, y, False, False, T, ca, w32, to1, to0, dout,
                               valid, source)
 
 
