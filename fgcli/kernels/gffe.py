@@ -465,24 +465,26 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
                            (r + x))
     for pr in prange(h):
         y = np.int64(pr)
+        br = buf[y * w:(y + 1) * w]  # (row views: see bits_count_kernel)
         if has_want:
+            wr = want[y * w:(y + 1) * w]
             nw = U0
             for x in range(w):
-                nw |= want[y * w + x]
+                nw |= wr[x]
             if nw == U0:  # (a row without a want cell: left as it is)
                 continue
             for x in range(w):
                 src[y, x] = np.int64(-1)
                 dep[y, x] = INF
             for x in range(w):
-                if want[y * w + x] != U0:
-                    k = buf[y * w + x]
+                if wr[x] != U0:
+                    k = br[x]
                     if k != I64_MAX:
                         src[y, x] = k & np.int64(0xFFFFFFFF)
                         dep[y, x] = np.int32(k >> 32).view(np.float32)
             continue
         for x in range(w):
-            k = buf[y * w + x]
+            k = br[x]
             hit = k != I64_MAX
             s = k & np.int64(0xFFFFFFFF)
             d = np.int32(k >> 32).view(np.float32)
