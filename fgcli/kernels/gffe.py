@@ -79,25 +79,37 @@ def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase,
     hw32 = I32(h * w)
     for y in range(ya, yb):
         gyy = gyn[y]
-        if want_f:
-            for x in range(w):
-                s = sel[y, x] != U0
-                b0 = fbase[0, y, x] if has_fbase else ZERO
-                b1 = fbase[1, y, x] if has_fbase else ZERO
-                fout[0, y, x] = flow[0, y, x] if s else b0
-                fout[1, y, x] = flow[1, y, x] if s else b1
+        sr = sel[y]
+        if want_f:  # (per plane, base or zero chosen outside the loop: a load under a
+            # select of has_fbase made the loop scalar or masked)
+            for c in range(2):
+                fo = fout[c, y]
+                fl = flow[c, y]
+                if has_fbase:
+                    fb = fbase[c, y]
+                    for x in range(w):
+                        fo[x] = fl[x] if sr[x] != U0 else fb[x]
+                else:
+                    for x in range(w):
+                        fo[x] = fl[x] if sr[x] != U0 else ZERO
         for xs in range((w + SPAN - 1) // SPAN):
             xa = np.int64(xs) * SPAN
             n = min(SPAN, w - xa)
             m = np.int64(0)  # selected pixels in the run (sel is 0 / 1)
+            sn = sr[xa:xa + n]
             for i in range(n):
-                m += np.int64(sel[y, xa + i])
+                m += np.int64(sn[i])
             if m == 0:
                 if not inplace:
-                    for i in range(n):
-                        x = xa + i
-                        for k in range(3):
-                            out[k, y, x] = base[k, y, x] if has_base else ZERO
+                    for k in range(3):
+                        ok = out[k, y, xa:xa + n]
+                        if has_base:
+                            bk = base[k, y, xa:xa + n]
+                            for i in range(n):
+                                ok[i] = bk[i]
+                        else:
+                            for i in range(n):
+                                ok[i] = ZERO
             elif WINDOW16 and 2 * m >= n:  # mostly selected: the run's taps into row
                 # buffers, 16 pixels per fetch, then the selects (a sparse run: per pixel)
                 for i in range(n):
@@ -107,12 +119,21 @@ def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase,
                 for blk in range(n // 16):
                     bilinear16x3(img, hw32, w32, h32, XA, XB, YA, YB, WT, Z,
                                  I32(xa + 16 * blk), I32(y * w), R, w32, I32(0))
-                for i in range(n // 16 * 16):
-                    x = xa + i
-                    s = sel[y, x] != U0
-                    for k in range(3):
-                        b = base[k, y, x] if has_base else ZERO
-                        out[k, y, x] = R[k, x] if s else b
+                # the selects per plane through row views, base or zero chosen outside
+                # the loop (per pixel, with base's load under has_base, the loop ran
+                # scalar: three loads, three stores and two branches a pixel)
+                nn = n // 16 * 16
+                sv = sn[:nn]
+                for k in range(3):
+                    rk = R[k, xa:xa + nn]
+                    ok = out[k, y, xa:xa + nn]
+                    if has_base:
+                        bk = base[k, y, xa:xa + nn]
+                        for i in range(nn):
+                            ok[i] = rk[i] if sv[i] != U0 else bk[i]
+                    else:
+                        for i in range(nn):
+                            ok[i] = rk[i] if sv[i] != U0 else ZERO
                 for i in range(n // 16 * 16, n):  # (a row's last w % 16 pixels)
                     _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh,
                                wm1, hm1, w32, h32, hw32, out, xa + i, y)
