@@ -926,6 +926,42 @@ def test_sqrt_threshold(monkeypatch):
         same("depth (square roots)", kr, r)
 
 
+def test_pair16_equals_two_overlapping_updates():
+    """fmin16x2 / umax16x2 (the footprint scatters' two taps of a run merged in registers)
+    write what fmin16 / umax16 twice write, the second one texel to the right (d = 1) or
+    on the same texels (d = 0), bit for bit: signed zeros and +inf included (the minimum
+    keeps the older value on ties, as the sequential updates do)."""
+    from numba import njit
+
+    from fgcli.kernels._intrin import fmin16, fmin16x2, umax16, umax16x2
+
+    @njit(cache=False)
+    def seq(buf, q, a, b, j, d, ubuf, ua, ub):
+        fmin16(buf, q, a, j)
+        fmin16(buf, q + d, b, j)
+        umax16(ubuf, q, ua, j)
+        umax16(ubuf, q + d, ub, j)
+
+    @njit(cache=False)
+    def pair(buf, q, a, b, j, d, ubuf, ua, ub):
+        fmin16x2(buf, q, a, b, j, d)
+        umax16x2(ubuf, q, ua, ub, j, d)
+
+    rng = np.random.default_rng(3)
+    vals = np.array([0.0, -0.0, 0.25, 1.0, 3.0, np.inf], dtype=np.float32)
+    for _ in range(300):
+        d, q, j = int(rng.integers(0, 2)), int(rng.integers(0, 20)), int(rng.integers(0, 8))
+        buf, a, b = rng.choice(vals, 40), rng.choice(vals, 24), rng.choice(vals, 24)
+        ubuf, ua, ub = (rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
+                        for n in (40, 24, 24))
+        r1 = [buf.copy(), ubuf.copy()]
+        r2 = [buf.copy(), ubuf.copy()]
+        seq(r1[0], q, a, b, j, d, r1[1], ua, ub)
+        pair(r2[0], q, a, b, j, d, r2[1], ua, ub)
+        assert r1[0].view(np.uint32).tolist() == r2[0].view(np.uint32).tolist(), (q, j, d)
+        assert r1[1].tolist() == r2[1].tolist(), (q, j, d)
+
+
 def test_fsr3_field_scatter_runs():
     """The field scatter writes runs of 16 sources whose footprints continue each other
     (smooth motion) as vector maxima: regions of one sub-pixel vector each (all four taps

@@ -221,6 +221,103 @@ fmin16 = _fmin16_avx if "+avx" in _FEATURES else _lanes16(
     "buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no NaN in either).")
 
 
+
+def _vmin16_whole(builder, b, a):
+    """b < a ? b : a lane by lane for <16 x float> values, as x86 min instructions (one
+    512-bit one with AVX-512, two 256-bit halves with AVX): never a masked store."""
+    v16 = ir.VectorType(ir.FloatType(), 16)
+    if HAVE_AVX512:
+        f = builder.module.declare_intrinsic(
+            "llvm.x86.avx512.min.ps.512",
+            fnty=ir.FunctionType(v16, [v16, v16, ir.IntType(32)]))
+        return builder.call(f, [b, a, ir.Constant(ir.IntType(32), 4)])
+    v8 = ir.VectorType(ir.FloatType(), 8)
+    f = builder.module.declare_intrinsic("llvm.x86.avx.min.ps.256",
+                                         fnty=ir.FunctionType(v8, [v8, v8]))
+    halves = []
+    for h in range(2):
+        idx = ir.Constant(ir.VectorType(ir.IntType(32), 8), list(range(8 * h, 8 * h + 8)))
+        halves.append(builder.call(f, [builder.shuffle_vector(b, b, idx),
+                                       builder.shuffle_vector(a, a, idx)]))
+    return builder.shuffle_vector(halves[0], halves[1],
+                                  ir.Constant(ir.VectorType(ir.IntType(32), 16),
+                                              list(range(16))))
+
+
+def _pair16(elem, lane, vop, sop, fill, doc):
+    """An intrinsic f(buf, q, sa, sb, j, d), d 0 or 1: the two 16-lane updates
+    buf[q:q + 16] = op(buf[q:q + 16], sa[j:j + 16]), then buf[q + d:q + d + 16] =
+    op(that, sb[j:j + 16]), in registers: one load and one store of the 16 (or 17) values
+    instead of two overlapping ones, whose second load waited for the first store to leave
+    the store buffer (a store-forwarding stall at each of a scatter's runs). vop / sop:
+    the operation on vectors / scalars, argument order (new, old) as the sequential
+    updates apply it (bit-identical, ties included); fill: its identity."""
+    @intrinsic
+    def op(typingctx, buf, q, sa, sb, j, d):
+        if not (all(isinstance(a, types.Array) and a.dtype == elem and a.ndim == 1
+                    and a.layout == "C" for a in (buf, sa, sb))
+                and isinstance(d, types.Integer)):
+            return None
+
+        def codegen(context, builder, sig, args):
+            bty, qty, saty, sbty, jty, dty = sig.args
+            v = ir.VectorType(lane, 16)
+            pe = _flat_ptr(context, builder, bty, args[0], args[1], qty)
+            pb = builder.bitcast(pe, v.as_pointer())
+            pa = builder.bitcast(_flat_ptr(context, builder, saty, args[2], args[4], jty),
+                                 v.as_pointer())
+            pz = builder.bitcast(_flat_ptr(context, builder, sbty, args[3], args[4], jty),
+                                 v.as_pointer())
+            old = builder.load(pb, align=4)
+            x = builder.load(pa, align=4)
+            y = builder.load(pz, align=4)
+            m = vop(builder, x, old)
+            dv = context.cast(builder, args[5], dty, types.int64)
+            with builder.if_else(builder.icmp_signed("==", dv, ir.Constant(
+                    ir.IntType(64), 0))) as (same, shifted):
+                with same:
+                    builder.store(vop(builder, y, m), pb, align=4)
+                with shifted:
+                    # sb's lanes one texel to the right: lane 0 the identity, lane 15 apart
+                    fv = ir.Constant(v, [fill] * 16)
+                    ys = builder.shuffle_vector(y, fv, ir.Constant(
+                        ir.VectorType(ir.IntType(32), 16), [16] + list(range(15))))
+                    builder.store(vop(builder, ys, m), pb, align=4)
+                    p16 = builder.gep(pe, [ir.Constant(ir.IntType(32), 16)], inbounds=True)
+                    e = builder.load(p16, align=4)
+                    y15 = builder.extract_element(y, ir.Constant(ir.IntType(32), 15))
+                    builder.store(sop(builder, y15, e), p16, align=4)
+            return context.get_dummy_value()
+
+        return types.void(buf, q, sa, sb, j, d), codegen
+
+    op.__doc__ = doc
+    return op
+
+
+def _umax_v(bd, b, a):
+    f = bd.module.declare_intrinsic("llvm.umax.v16i32",
+                                    fnty=ir.FunctionType(b.type, [b.type, b.type]))
+    return bd.call(f, [b, a])
+
+
+def _umax_s(bd, b, a):
+    return bd.select(bd.icmp_unsigned(">", b, a), b, a)
+
+
+def _fmin_s(bd, b, a):
+    return bd.select(bd.fcmp_ordered("<", b, a), b, a)
+
+
+# two footprint taps one texel apart (d = 1) or on the same texel (d = 0), 16 sources of
+# one run: umax16 / fmin16 twice, merged in registers
+umax16x2 = _pair16(types.uint32, ir.IntType(32), _umax_v, _umax_s, 0,
+                   "umax16(buf, q, sa, j), then umax16(buf, q + d, sb, j), d 0 or 1.")
+fmin16x2 = _pair16(types.float32, ir.FloatType(),
+                   _vmin16_whole if "+avx" in _FEATURES else _fmin_s, _fmin_s, float("inf"),
+                   "fmin16(buf, q, sa, j), then fmin16(buf, q + d, sb, j), d 0 or 1 "
+                   "(AVX: x86 min instructions).")
+
 def _sad_search_typing(win, cur, order):
     return (isinstance(win, types.Array) and win.dtype == types.uint8 and win.ndim == 1
             and isinstance(cur, types.Array) and cur.dtype == types.uint8 and cur.ndim == 1

@@ -13,7 +13,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, f2i64, sdepth_b, smv_b,
                                    sval_b)
-from fgcli.kernels._intrin import HAVE_WINDOW16, bilinear16x1, fmin16, ld32, mad32, umax16
+from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x1, fmin16x2, ld32, mad32,
+                                   umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -86,10 +87,8 @@ def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
     while j < m:
         if j + 16 <= m and brk[j + 15] == brk[j]:  # 16 sources, one run
             q = q0[j]
-            umax16(buf, q, k0, j)
-            umax16(buf, q + dx[j], k1, j)
-            umax16(buf, q + dy[j], k2, j)
-            umax16(buf, q + dy[j] + dx[j], k3, j)
+            umax16x2(buf, q, k0, k1, j, dx[j])  # (dx is 0 or 1: _taps' columns)
+            umax16x2(buf, q + dy[j], k2, k3, j, dx[j])
             j += 16
         else:
             q = q0[j]
@@ -299,10 +298,8 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
             while x < w:
                 if x + 16 <= w and brk[x + 15] == brk[x]:
                     q = q0[x]
-                    fmin16(bufs, q, z0, x)
-                    fmin16(bufs, q + dx[x], z1, x)
-                    fmin16(bufs, q + dy[x], z2, x)
-                    fmin16(bufs, q + dy[x] + dx[x], z3, x)
+                    fmin16x2(bufs, q, z0, z1, x, dx[x])  # (dx is 0 or 1)
+                    fmin16x2(bufs, q + dy[x], z2, z3, x, dx[x])
                     x += 16
                 else:
                     q = q0[x]
