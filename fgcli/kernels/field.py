@@ -91,10 +91,11 @@ def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
             umax16x2(buf, q + dy[j], k2, k3, j, dx[j])
             j += 16
         else:
-            q = q0[j]
-            q1 = q + dx[j]
-            q2 = q + dy[j]
-            q3 = q2 + dx[j]
+            # (unsigned indices, all >= 0: no negative-index wraparound, as splat_kernel)
+            q = np.uint64(q0[j])
+            q1 = q + np.uint64(dx[j])
+            q2 = q + np.uint64(dy[j])
+            q3 = q2 + np.uint64(dx[j])
             buf[q] = max(buf[q], k0[j])
             buf[q1] = max(buf[q1], k1[j])
             buf[q2] = max(buf[q2], k2[j])
@@ -302,10 +303,10 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
                     fmin16x2(bufs, q + dy[x], z2, z3, x, dx[x])
                     x += 16
                 else:
-                    q = q0[x]
-                    q1 = q + dx[x]
-                    q2 = q + dy[x]
-                    q3 = q2 + dx[x]
+                    q = np.uint64(q0[x])  # (unsigned: see _scatter_max)
+                    q1 = q + np.uint64(dx[x])
+                    q2 = q + np.uint64(dy[x])
+                    q3 = q2 + np.uint64(dx[x])
                     bufs[q] = min(bufs[q], z0[x])
                     bufs[q1] = min(bufs[q1], z1[x])
                     bufs[q2] = min(bufs[q2], z2[x])

@@ -349,8 +349,12 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
                     q = np.int64(Q[x])
                     if q >= zlo and q < zhi:
                         k = (np.int64(KH[x]) << 32) | yk | x
-                        if k < buf[q]:
-                            buf[q] = k
+                        # (an unsigned index: q >= 0, _target's flat index into the
+                        # ringed buffer, and numba then leaves out its negative-index
+                        # wraparound: three instructions a source)
+                        uq = np.uint64(q)
+                        if k < buf[uq]:
+                            buf[uq] = k
                     else:
                         deferred[y * w + x] = 1
                         dq[y * w + x] = q
