@@ -70,6 +70,12 @@ def _flat_ptr(context, builder, aryty, ary, idx, idxty):
     return builder.gep(a.data, [i], inbounds=True)
 
 
+def _vec16_ptr(context, builder, aryty, ary, idx, idxty, lane):
+    """_flat_ptr as a pointer to 16 lanes of LLVM type lane (unaligned loads and stores)."""
+    return builder.bitcast(_flat_ptr(context, builder, aryty, ary, idx, idxty),
+                           ir.VectorType(lane, 16).as_pointer())
+
+
 @intrinsic
 def ld32(typingctx, arr, i):
     """arr.flat[i] (C-contiguous array, 0 <= i < arr.size < 2**31, int32 index).
@@ -126,11 +132,8 @@ def _lanes16(elem, lane, pick, doc):
 
         def codegen(context, builder, sig, args):
             bty, qty, sty, jty = sig.args
-            v = ir.VectorType(lane, 16)
-            pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
-                                 v.as_pointer())
-            ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
-                                 v.as_pointer())
+            pb = _vec16_ptr(context, builder, bty, args[0], args[1], qty, lane)
+            ps = _vec16_ptr(context, builder, sty, args[2], args[3], jty, lane)
             a = builder.load(pb, align=4)
             b = builder.load(ps, align=4)
             builder.store(pick(builder, a, b), pb, align=4)
@@ -142,8 +145,12 @@ def _lanes16(elem, lane, pick, doc):
     return op
 
 
-umax16 = _lanes16(types.uint32, ir.IntType(32),
-                  lambda bd, a, b: bd.select(bd.icmp_unsigned(">", b, a), b, a),
+def _umax_s(bd, b, a):
+    """b > a ? b : a, unsigned, as a select (scalars or vectors)."""
+    return bd.select(bd.icmp_unsigned(">", b, a), b, a)
+
+
+umax16 = _lanes16(types.uint32, ir.IntType(32), lambda bd, a, b: _umax_s(bd, b, a),
                   "buf[q:q + 16] = max(buf[q:q + 16], src[j:j + 16]) (uint32 arrays).")
 
 
@@ -184,42 +191,9 @@ HAVE_AVX512 = "+avx512f" in _FEATURES
 HAVE_WINDOW16 = HAVE_AVX512 or HAVE_AVX2
 
 
-@intrinsic
-def _fmin16_avx(typingctx, buf, q, src, j):
-    if not all(isinstance(a, types.Array) and a.dtype == types.float32 and a.ndim == 1
-               and a.layout == "C" for a in (buf, src)):
-        return None
-
-    def codegen(context, builder, sig, args):
-        bty, qty, sty, jty = sig.args
-        v8 = ir.VectorType(ir.FloatType(), 8)
-        pb = builder.bitcast(_flat_ptr(context, builder, bty, args[0], args[1], qty),
-                             v8.as_pointer())
-        ps = builder.bitcast(_flat_ptr(context, builder, sty, args[2], args[3], jty),
-                             v8.as_pointer())
-        vmin = builder.module.declare_intrinsic("llvm.x86.avx.min.ps.256",
-                                                fnty=ir.FunctionType(v8, [v8, v8]))
-        for half in range(2):
-            at = ir.Constant(ir.IntType(32), half)
-            pbh = builder.gep(pb, [at])
-            a = builder.load(pbh, align=4)
-            b = builder.load(builder.gep(ps, [at]), align=4)
-            # vminps(b, a) = b < a ? b : a, stored whole
-            builder.store(builder.call(vmin, [b, a]), pbh, align=4)
-        return context.get_dummy_value()
-
-    return types.void(buf, q, src, j), codegen
-
-
-# buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no NaN in either: the
-# caller's values are sanitised depths). As a select of the loaded values LLVM stores it
-# with masked stores (vmaskmovps: the lanes where src is smaller), which stall the loads
-# of the next overlapping minima on Zen 3 (depth_scatter_pair: 14.9 -> 10.4 ms per 1080p
-# pair with AVX's vminps and whole stores, in one process); without AVX the select.
-fmin16 = _fmin16_avx if "+avx" in _FEATURES else _lanes16(
-    types.float32, ir.FloatType(), lambda bd, a, b: bd.select(bd.fcmp_ordered("<", b, a), b, a),
-    "buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no NaN in either).")
-
+def _fmin_s(bd, b, a):
+    """b < a ? b : a as a select (scalars or vectors)."""
+    return bd.select(bd.fcmp_ordered("<", b, a), b, a)
 
 
 def _vmin16_whole(builder, b, a):
@@ -244,6 +218,17 @@ def _vmin16_whole(builder, b, a):
                                               list(range(16))))
 
 
+# buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no NaN in either: the
+# caller's values are sanitised depths). As a select of the loaded values LLVM stores it
+# with masked stores (vmaskmovps: the lanes where src is smaller), which stall the loads
+# of the next overlapping minima on Zen 3 (depth_scatter_pair: 14.9 -> 10.4 ms per 1080p
+# pair with AVX's vminps and whole stores, in one process); without AVX the select.
+_vmin16 = _vmin16_whole if "+avx" in _FEATURES else _fmin_s
+fmin16 = _lanes16(types.float32, ir.FloatType(), lambda bd, a, b: _vmin16(bd, b, a),
+                  "buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no "
+                  "NaN in either).")
+
+
 def _pair16(elem, lane, vop, sop, fill, doc):
     """An intrinsic f(buf, q, sa, sb, j, d), d 0 or 1: the two 16-lane updates
     buf[q:q + 16] = op(buf[q:q + 16], sa[j:j + 16]), then buf[q + d:q + d + 16] =
@@ -264,10 +249,8 @@ def _pair16(elem, lane, vop, sop, fill, doc):
             v = ir.VectorType(lane, 16)
             pe = _flat_ptr(context, builder, bty, args[0], args[1], qty)
             pb = builder.bitcast(pe, v.as_pointer())
-            pa = builder.bitcast(_flat_ptr(context, builder, saty, args[2], args[4], jty),
-                                 v.as_pointer())
-            pz = builder.bitcast(_flat_ptr(context, builder, sbty, args[3], args[4], jty),
-                                 v.as_pointer())
+            pa = _vec16_ptr(context, builder, saty, args[2], args[4], jty, lane)
+            pz = _vec16_ptr(context, builder, sbty, args[3], args[4], jty, lane)
             old = builder.load(pb, align=4)
             x = builder.load(pa, align=4)
             y = builder.load(pz, align=4)
@@ -301,22 +284,14 @@ def _umax_v(bd, b, a):
     return bd.call(f, [b, a])
 
 
-def _umax_s(bd, b, a):
-    return bd.select(bd.icmp_unsigned(">", b, a), b, a)
-
-
-def _fmin_s(bd, b, a):
-    return bd.select(bd.fcmp_ordered("<", b, a), b, a)
-
-
 # two footprint taps one texel apart (d = 1) or on the same texel (d = 0), 16 sources of
 # one run: umax16 / fmin16 twice, merged in registers
 umax16x2 = _pair16(types.uint32, ir.IntType(32), _umax_v, _umax_s, 0,
                    "umax16(buf, q, sa, j), then umax16(buf, q + d, sb, j), d 0 or 1.")
-fmin16x2 = _pair16(types.float32, ir.FloatType(),
-                   _vmin16_whole if "+avx" in _FEATURES else _fmin_s, _fmin_s, float("inf"),
+fmin16x2 = _pair16(types.float32, ir.FloatType(), _vmin16, _fmin_s, float("inf"),
                    "fmin16(buf, q, sa, j), then fmin16(buf, q + d, sb, j), d 0 or 1 "
                    "(AVX: x86 min instructions).")
+
 
 def _sad_search_typing(win, cur, order):
     return (isinstance(win, types.Array) and win.dtype == types.uint8 and win.ndim == 1

@@ -446,7 +446,8 @@ def _splat_resolve_window_rows(ya, yb, buf, depth1, mv1, disp, ca, quad, w0, to1
     for y in range(ya, yb):
         # a row view: buf[r + x] with r of unknown sign (y runs from a chunk's bounds) keeps
         # numba's negative-index wraparound inside the loop, and LLVM made the loads gathers
-        br = buf[(y + 1) * w2 + 1:(y + 2) * w2 - 1]
+        r = (y + 1) * w2 + 1
+        br = buf[r:r + w]
         for x in range(w):
             _winner_px(br[x], x, y, JX, JY)
         for b in range(nb):
