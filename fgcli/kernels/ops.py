@@ -537,8 +537,8 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
                     pool=None):
     """fgcli.ops.pyramid.pyramid_inpaint: the dense part (sanitised copy, cleaned weight,
     hole mask and count, level 1 straight from the image) in one kernel, the hole indices
-    in another, the coarser levels by pool2_kernel, then the reference's sampling at the
-    hole pixels."""
+    in another, the coarser levels and the fill at the hole pixels in two more
+    (_inpaint_levels)."""
     from fgcli.ops import pyramid as PY
 
     ok = (_f32cpu(values) and _f32cpu(weight) and weight.shape[0] == 1
@@ -561,44 +561,54 @@ def _inpaint(values, weight, holes, mode, decay, eps, in_place=False):
     inp = holes is not None and _writable(in_place, values) and holes.is_contiguous()
     out = values if inp else _empty(c, h, w)
     hout = holes if inp else _empty(1, h, w, dtype=torch.bool)
-    lev1 = _empty(c + 1, (h + 1) // 2, (w + 1) // 2)
+    *chain, lev1 = _chain(c + 1, h, w)
     nh = np.empty((h + 1) // 2, dtype=np.int64)
     ha = _u8(holes)[0] if holes is not None else _u8(hout)[0]  # (unread when not given)
     va = _a(values)
     inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
-                        holes is not None, _a(out), _u8(hout)[0], lev1.numpy(), nh, not inp)
-    return _inpaint_levels(out, hout, lev1, nh, mode, decay, eps)
+                        holes is not None, _a(out), _u8(hout)[0], lev1, nh, not inp)
+    return _inpaint_levels(out, hout, chain, nh, mode, decay, eps)
 
 
-def _inpaint_levels(out, hout, lev1, nh, mode, decay, eps):
+def _chain(c1, h, w):
+    """An empty mip chain for an (H, W) image with c1 channels (levels 1.. in one buffer,
+    fgcli.kernels.pyramid.chain_layout): (buffer, hs, ws, offs, level 1 as (c1, h2, w2))."""
+    from fgcli.kernels.pyramid import chain_layout
+
+    hs, ws, offs = chain_layout(c1, h, w)
+    buf = np.empty(int(offs[-1]), dtype=np.float32)
+    return buf, hs, ws, offs, buf[:offs[2]].reshape(c1, int(hs[1]), int(ws[1]))
+
+
+def _inpaint_levels(out, hout, chain, nh, mode, decay, eps):
     """pyramid_inpaint's kernel path after its dense part (out: the sanitised values,
-    hout (1, H, W) the holes, lev1 and nh from inpaint_prep_kernel): the hole indices, the
-    coarser levels and the fill, in place on out."""
-    from fgcli.ops import pyramid as PY
-    from fgcli.kernels.pyramid import hole_index_kernel
+    hout (1, H, W) the holes, chain = _chain(...)[:4] with level 1 and nh from
+    inpaint_prep_kernel): the hole indices, the coarser levels (pool_chain_kernel) and the
+    fill (fill_levels_kernel: fill_from_levels' values), in place on out."""
+    from fgcli.kernels.pyramid import fill_levels_kernel, hole_index_kernel, pool_chain_kernel
 
     h, w = out.shape[-2:]
     start = np.zeros(nh.size + 1, dtype=np.int64)
     np.cumsum(nh, out=start[1:])
     n = int(start[-1])
+    filled = torch.zeros(1, h, w, dtype=torch.bool)
     if n == 0:
-        return out, torch.zeros(1, h, w, dtype=torch.bool)
+        return out, filled
     idx = np.empty(n, dtype=np.int64)
     hole_index_kernel(_u8(hout)[0], start, idx)
-    lev = [None, lev1]
-    while lev[-1].shape[1] > 1 or lev[-1].shape[2] > 1:
-        lev.append(avg_pool2(lev[-1]))
-    return PY.fill_from_levels(out, hout, torch.from_numpy(idx), lev, mode, decay, eps,
-                               sample=_level_sample)
-
-
-def _level_sample(level, i, xs, ys):
-    """fgcli.ops.pyramid._sample_level by level_sample_kernel (the same values)."""
-    from fgcli.kernels.pyramid import level_sample_kernel
-
-    out = _empty(level.shape[0], xs.shape[0])
-    level_sample_kernel(_a(level), F32(float(2 ** i)), _a(xs), _a(ys), out.numpy())
-    return out
+    buf, hs, ws, offs = chain
+    pool_chain_kernel(buf, hs, ws, offs)
+    ms = np.zeros(hs.size, dtype=np.float32)  # fill_from_levels' level weights (as alpha)
+    nb = 0
+    while mode == "blend" and nb + 1 < hs.size:
+        m = max(0.0, 1.0 - (nb + 1) / decay) ** 3
+        if m <= 0.0:
+            break
+        nb += 1
+        ms[nb] = m
+    fill_levels_kernel(buf, hs, ws, offs, idx, ms, nb, F32(eps), _a(out).reshape(out.shape[0], -1),
+                       _u8(filled).reshape(-1))
+    return out, filled
 
 
 def fill_packed_field(field):
@@ -618,14 +628,14 @@ def fill_packed_field(field):
     out = _empty(2, h, w)
     hout = _empty(1, h, w, dtype=torch.bool)
     valid = _empty(1, h, w, dtype=torch.bool)
-    lev1 = _empty(3, (h + 1) // 2, (w + 1) // 2)
+    *chain, lev1 = _chain(3, h, w)
     nh = np.empty((h + 1) // 2, dtype=np.int64)
     src, o = _padded_base(field)
     field_fill_prep_kernel(_a(field) if src is None else src, o, out.numpy(), _u8(hout)[0],
-                           _u8(valid)[0], lev1.numpy(), nh)
+                           _u8(valid)[0], lev1, nh)
     if not nh.any():
         return out, valid
-    return _inpaint_levels(out, hout, lev1, nh, "first", 10.0, 1e-12)[0], valid
+    return _inpaint_levels(out, hout, chain, nh, "first", 10.0, 1e-12)[0], valid
 
 
 def inpaint_color(color, holes, decay=10.0, in_place=False):
@@ -816,7 +826,8 @@ def _warm_kernels(families=None) -> tuple:
                     fsr3.interp_game_kernel, pyramid.pool2_kernel,
                     fsr3.interp_window_kernel if HAVE_WINDOW16 else fsr3.interp_flow_kernel,
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
-                    pyramid.hole_index_kernel, pyramid.level_sample_kernel,
+                    pyramid.hole_index_kernel, pyramid.pool_chain_kernel,
+                    pyramid.fill_levels_kernel,
                     flow.luma8_kernel,
                     field.entries_prio_kernel, field.agreement_block_kernel,
                     field.field_scatter_block_kernel, field.field_scatter_prio_kernel,

@@ -1,6 +1,7 @@
 """The mip chain of fgcli.ops.pyramid: one 2x2 box-average level (torch's avg_pool2d with
 ceil_mode, whose CPU kernel is not vectorised for this case: 45 ms for a 4-channel 1080p
-level against 8 ms here), and pyramid_inpaint's dense part."""
+level against 8 ms here), the whole chain in one call, pyramid_inpaint's dense part, and
+its fill at the hole pixels (fill_from_levels) in one pass per hole."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,37 +15,84 @@ U0 = np.uint8(0)
 U1 = np.uint8(1)
 
 
-@njit(**KERNEL)
-def pool2_kernel(src, dst):
-    """dst = avg_pool2d(src, 2, ceil_mode=True) for (C, H, W) float32: each output the sum
-    of the existing children in row-major order, from 0 (as torch's loop), divided by
-    their count (so the last row / column of an odd size averages what exists)."""
-    c, h, w = src.shape
-    h2 = dst.shape[1]
+@njit(**INLINE)
+def _pool_row(src, dst, k, oy):
+    """dst[k, oy, :] = avg_pool2d(src, 2, ceil_mode=True)'s row: each output the sum of
+    the existing children in row-major order, from 0 (as torch's loop), divided by their
+    count (so the last row / column of an odd size averages what exists)."""
+    h = src.shape[1]
+    w = src.shape[2]
     w2 = dst.shape[2]
     wf = w // 2
+    y0 = 2 * oy
+    if y0 + 1 < h:
+        for ox in range(wf):
+            s = F32(0.0) + src[k, y0, 2 * ox]
+            s += src[k, y0, 2 * ox + 1]
+            s += src[k, y0 + 1, 2 * ox]
+            s += src[k, y0 + 1, 2 * ox + 1]
+            dst[k, oy, ox] = s / F32(4.0)
+        if wf < w2:
+            s = F32(0.0) + src[k, y0, w - 1]
+            s += src[k, y0 + 1, w - 1]
+            dst[k, oy, wf] = s / F32(2.0)
+    else:
+        for ox in range(wf):
+            s = F32(0.0) + src[k, y0, 2 * ox]
+            s += src[k, y0, 2 * ox + 1]
+            dst[k, oy, ox] = s / F32(2.0)
+        if wf < w2:
+            dst[k, oy, wf] = (F32(0.0) + src[k, y0, w - 1]) / F32(1.0)
+
+
+@njit(**KERNEL)
+def pool2_kernel(src, dst):
+    """dst = avg_pool2d(src, 2, ceil_mode=True) for (C, H, W) float32 (_pool_row)."""
+    c = src.shape[0]
+    h2 = dst.shape[1]
     for q in prange(c * h2):
         k = q // h2
-        oy = q - k * h2
-        y0 = 2 * oy
-        if y0 + 1 < h:
-            for ox in range(wf):
-                s = F32(0.0) + src[k, y0, 2 * ox]
-                s += src[k, y0, 2 * ox + 1]
-                s += src[k, y0 + 1, 2 * ox]
-                s += src[k, y0 + 1, 2 * ox + 1]
-                dst[k, oy, ox] = s / F32(4.0)
-            if wf < w2:
-                s = F32(0.0) + src[k, y0, w - 1]
-                s += src[k, y0 + 1, w - 1]
-                dst[k, oy, wf] = s / F32(2.0)
+        _pool_row(src, dst, k, q - k * h2)
+
+
+def chain_layout(c1: int, h: int, w: int):
+    """Where the mip levels 1.. of an (H, W) image with c1 channels lie in one flat
+    float32 buffer, down to 1x1 (fgcli.ops.pyramid.weighted_pyramid's sizes): (hs, ws,
+    offs), int64, index i = level i (index 0: level 0's size, not stored); level i is
+    buffer[offs[i]:offs[i + 1]] as (c1, hs[i], ws[i])."""
+    hs, ws = [h], [w]
+    while hs[-1] > 1 or ws[-1] > 1:
+        hs.append((hs[-1] + 1) // 2)
+        ws.append((ws[-1] + 1) // 2)
+    offs = [0, 0]
+    for i in range(1, len(hs)):
+        offs.append(offs[-1] + c1 * hs[i] * ws[i])
+    return (np.array(hs, dtype=np.int64), np.array(ws, dtype=np.int64),
+            np.array(offs, dtype=np.int64))
+
+
+_PAR_LEVEL = 1 << 15  # a level of fewer elements pools on one thread (no wake-up)
+
+
+@njit(**KERNEL)
+def pool_chain_kernel(chain, hs, ws, offs):
+    """Levels 2.. of a chain (chain_layout) from its level 1, each pool2_kernel of the one
+    before (the same sums in the same order), in one call: the small levels on one thread
+    (30 calls of pool2_kernel cost 2.2 ms per 1080p fsr3-interp frame, mostly waking
+    threads)."""
+    c1 = (offs[2] - offs[1]) // (hs[1] * ws[1])
+    for i in range(2, hs.shape[0]):
+        src = chain[offs[i - 1]:offs[i]].reshape((c1, hs[i - 1], ws[i - 1]))
+        dst = chain[offs[i]:offs[i + 1]].reshape((c1, hs[i], ws[i]))
+        h2 = hs[i]
+        if offs[i + 1] - offs[i] >= _PAR_LEVEL:
+            for q in prange(c1 * h2):
+                k = q // h2
+                _pool_row(src, dst, k, q - k * h2)
         else:
-            for ox in range(wf):
-                s = F32(0.0) + src[k, y0, 2 * ox]
-                s += src[k, y0, 2 * ox + 1]
-                dst[k, oy, ox] = s / F32(2.0)
-            if wf < w2:
-                dst[k, oy, wf] = (F32(0.0) + src[k, y0, w - 1]) / F32(1.0)
+            for q in range(c1 * h2):
+                k = q // h2
+                _pool_row(src, dst, k, q - k * h2)
 
 
 @njit(**INLINE)
@@ -144,51 +192,75 @@ def hole_index_kernel(hout, start, idx):
                     k += 1
 
 
+@njit(**INLINE)
+def _chain_sample(chain, o, hl, wl, c1, s, xf, yf, smp):
+    """level_sample_kernel at one pixel (xf, yf) of level (c1, hl, wl) starting at
+    chain[o], scale s = 2**i: smp[0:c1] (the same float32 ops)."""
+    gx = (((xf + F32(0.5)) / s) / F32(wl)) * F32(2.0) - F32(1.0)
+    gy = (((yf + F32(0.5)) / s) / F32(hl)) * F32(2.0) - F32(1.0)
+    y0, x0, y1, x1, nw, ne, sw, se = _grid_coords(gx, gy, F32(wl * 0.5), F32(hl * 0.5),
+                                                  F32(wl - 1), F32(hl - 1), wl, hl)
+    i00 = o + y0 * wl + x0
+    i01 = o + y0 * wl + x1
+    i10 = o + y1 * wl + x0
+    i11 = o + y1 * wl + x1
+    n = hl * wl
+    for k in range(c1):
+        b = k * n
+        smp[k] = fma(sval_b(chain[b + i11]), se,
+                     fma(sval_b(chain[b + i10]), sw,
+                         fma(sval_b(chain[b + i01]), ne, sval_b(chain[b + i00]) * nw)))
+
+
 @njit(**KERNEL)
-def level_sample_kernel(level, s, xs, ys, out):
-    """fgcli.ops.pyramid._sample_level: level (C, h, w) read bilinearly (grid_sample,
-    border, align_corners=False: fgcli.kernels.warp's arithmetic) at the full-resolution
-    pixels (xs, ys) (N,) scaled by s = 2**i, the grid point worked out as the reference's
-    float32 ops ((x + 0.5) / s / w * 2 - 1); out (C, N)."""
-    c, hl, wl = level.shape
-    hw = F32(wl * 0.5)
-    hh = F32(hl * 0.5)
-    wm1 = F32(wl - 1)
-    hm1 = F32(hl - 1)
-    fw = F32(wl)
-    fh = F32(hl)
-    flat = level.reshape((c, hl * wl))
-    n = xs.shape[0]
-    nch = (n + 4095) // 4096
+def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
+    """fgcli.ops.pyramid.fill_from_levels at the holes idx (flat indices into (H, W),
+    W = ws[0]) from the chain's levels 1.. (chain_layout, C + 1 channels), one pass per
+    hole instead of a gather and selects per level over all of them: 'blend' (nb > 0):
+    acc = sum over levels 1..nb of fma(sample, ms[i], acc) (torch's add_ with alpha),
+    taken where its weight exceeds eps (float32), divided by the weight clamped at eps;
+    then (and for 'first', nb = 0) the first level whose sampled weight exceeds eps.
+    out (C, H * W) takes the sanitised result at each hole (0 where nothing holds any
+    weight), filled (H * W,) uint8 1 where a level served (the rest is not written)."""
+    c = out.shape[0]
+    w = ws[0]
+    nl = hs.shape[0]
+    n = idx.shape[0]
+    nch = (n + 1023) // 1024
     for pc in prange(nch):
-        j0 = np.int64(pc) * 4096
-        m = min(4096, n - j0)
-        xr = xs[j0:j0 + m]
-        yr = ys[j0:j0 + m]
-        i00 = np.empty(m, dtype=np.int64)  # flat taps and weights, then one gather loop
-        i01 = np.empty(m, dtype=np.int64)  # per channel (a channel loop of runtime
-        i10 = np.empty(m, dtype=np.int64)  # length inside the point loop stays scalar)
-        i11 = np.empty(m, dtype=np.int64)
-        wnw = np.empty(m, dtype=np.float32)
-        wne = np.empty(m, dtype=np.float32)
-        wsw = np.empty(m, dtype=np.float32)
-        wse = np.empty(m, dtype=np.float32)
-        for j in range(m):
-            gx = (((xr[j] + F32(0.5)) / s) / fw) * F32(2.0) - F32(1.0)
-            gy = (((yr[j] + F32(0.5)) / s) / fh) * F32(2.0) - F32(1.0)
-            y0, x0, y1, x1, nw, ne, sw, se = _grid_coords(gx, gy, hw, hh, wm1, hm1, wl, hl)
-            i00[j] = y0 * wl + x0
-            i01[j] = y0 * wl + x1
-            i10[j] = y1 * wl + x0
-            i11[j] = y1 * wl + x1
-            wnw[j] = nw
-            wne[j] = ne
-            wsw[j] = sw
-            wse[j] = se
-        for k in range(c):
-            lf = flat[k]
-            o = out[k, j0:j0 + m]
-            for j in range(m):
-                o[j] = fma(sval_b(lf[i11[j]]), wse[j],
-                           fma(sval_b(lf[i10[j]]), wsw[j],
-                               fma(sval_b(lf[i01[j]]), wne[j], sval_b(lf[i00[j]]) * wnw[j])))
+        j0 = np.int64(pc) * 1024
+        acc = np.empty(c + 1, dtype=np.float32)
+        smp = np.empty(c + 1, dtype=np.float32)
+        res = np.empty(c, dtype=np.float32)
+        for j in range(j0, min(n, j0 + 1024)):
+            q = idx[j]
+            y = q // w
+            xf = F32(q - y * w)
+            yf = F32(y)
+            done = False
+            for k in range(c):
+                res[k] = F32(0.0)
+            if nb > 0:
+                for k in range(c + 1):
+                    acc[k] = F32(0.0)
+                for i in range(1, nb + 1):
+                    _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(2.0 ** i), xf, yf,
+                                  smp)
+                    for k in range(c + 1):
+                        acc[k] = fma(smp[k], ms[i], acc[k])
+                if acc[c] > eps:  # (then the reference's clamp at eps leaves it)
+                    for k in range(c):
+                        res[k] = acc[k] / acc[c]
+                    done = True
+            i = 1
+            while not done and i < nl:
+                _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(2.0 ** i), xf, yf, smp)
+                if smp[c] > eps:
+                    for k in range(c):
+                        res[k] = smp[k] / smp[c]
+                    done = True
+                i += 1
+            for k in range(c):
+                out[k, q] = sval_b(res[k])
+            if done:
+                filled[q] = U1
