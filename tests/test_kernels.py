@@ -467,6 +467,12 @@ def test_block_flow(h, w, levels, block, search, median):
                  (stripes, stripes.roll(1, -1)), (raw, l1), (l1, raw)):
         ref = fsr3.block_flow(a, b, levels, block, search, median)
         assert torch.equal(K.block_flow(a, b, levels, block, search, median), ref)
+    # bytes in (luma8_u8's): the same vectors as their float values, on both backends
+    a8 = l0.clamp(0, 255).to(torch.uint8)
+    b8 = l1.round().clamp(0, 255).to(torch.uint8)
+    ref = fsr3.block_flow(a8.float(), b8.float(), levels, block, search, median)
+    assert torch.equal(fsr3.block_flow(a8, b8, levels, block, search, median), ref)
+    assert torch.equal(K.block_flow(a8, b8, levels, block, search, median), ref)
     # the sub-pixel option runs the reference's refinement after the kernel's search
     ref = fsr3.block_flow(l0, l1.round(), levels, block, max(search, 2), median, True)
     assert torch.equal(K.block_flow(l0, l1.round(), levels, block, max(search, 2), median,
@@ -1326,6 +1332,10 @@ def test_luma8_is_the_reference(h, w):
     flat[:, m:m + q] = specials[:, :q]
     k_out, r_out = K.luma8(c), fsr3.luma8(c)
     assert torch.equal(k_out.view(torch.int32), r_out.view(torch.int32))
+    # the bytes the block search reads: the same values
+    k8, r8 = K.luma8_u8(c), fsr3.luma8_u8(c)
+    assert k8.dtype == r8.dtype == torch.uint8
+    assert torch.equal(k8, r8) and torch.equal(k8.float(), r_out)
     if n >= 600:  # the boundaries were hit: both neighbours of some k + 1/2
         assert len(set(r_out.view(-1)[:m].tolist())) > 200
 

@@ -303,20 +303,37 @@ def pool2_u8_kernel(src, dst):
 
 # ----------------------------------------------------------------------------- luma8
 
+@njit(**INLINE)
+def _luma8_at(color, y, x, base, thr, b0, shift, n1):
+    """fgcli.ops.fsr3.luma8 of pixel (y, x): Y = clip(luminance(sanitize_values(color)),
+    0, 1) (NaN -> 0, +inf -> 1, -inf -> 0, as _clip01), then luma8_table's lookup:
+    base[i] + (Y >= thr[i]), i = (bits of Y >> shift) - b0 clamped to the table."""
+    v = _lum(color, y, x)
+    v = F32(0.0) if v != v else v
+    v = F32(1.0) if v > F32(1.0) else v  # (+inf -> 1)
+    v = F32(0.0) if v < F32(0.0) else v  # (-inf -> 0)
+    i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
+    i = 0 if i < 0 else (n1 if i > n1 else i)
+    return base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
+
+
 @njit(**KERNEL)
 def luma8_kernel(color, base, thr, b0, shift, out):
-    """fgcli.ops.fsr3.luma8: Y = clip(luminance(sanitize_values(color)), 0, 1) (NaN -> 0,
-    +inf -> 1, -inf -> 0, as _clip01), then luma8_table's lookup: base[i] + (Y >= thr[i]),
-    i = (bits of Y >> shift) - b0 clamped to the table. out (H, W) float32."""
+    """fgcli.ops.fsr3.luma8 (_luma8_at): out (H, W) float32."""
     h, w = out.shape
     n1 = base.shape[0] - 1
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
-            v = _lum(color, y, x)
-            v = F32(0.0) if v != v else v
-            v = F32(1.0) if v > F32(1.0) else v  # (+inf -> 1)
-            v = F32(0.0) if v < F32(0.0) else v  # (-inf -> 0)
-            i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
-            i = 0 if i < 0 else (n1 if i > n1 else i)
-            out[y, x] = base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
+            out[y, x] = _luma8_at(color, y, x, base, thr, b0, shift, n1)
+
+
+@njit(**KERNEL)
+def luma8_u8_kernel(color, base, thr, b0, shift, out):
+    """fgcli.ops.fsr3.luma8_u8 (_luma8_at, whole numbers 0..255): out (H, W) uint8."""
+    h, w = out.shape
+    n1 = base.shape[0] - 1
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            out[y, x] = np.uint8(_luma8_at(color, y, x, base, thr, b0, shift, n1))

@@ -550,11 +550,11 @@ def pyramid_inpaint(values, weight, holes=None, mode="blend", decay=10.0, eps=1e
     return _inpaint(values, weight, holes, mode, decay, eps)
 
 
-def _inpaint(values, weight, holes, mode, decay, eps, in_place=False):
+def _inpaint(values, weight, holes, mode, decay, eps, in_place=False, want_filled=True):
     """pyramid_inpaint's kernel path on checked inputs; weight None: 1 everywhere (holes
     given). in_place (values marked scratch and contiguous, holes given): the holes are
     filled in values itself, and the given holes serve as the hole mask (no copies: 26 MB
-    written less per 1080p colour frame)."""
+    written less per 1080p colour frame). want_filled False: no filled mask (None)."""
     from fgcli.kernels.pyramid import inpaint_prep_kernel
 
     c, h, w = values.shape
@@ -567,7 +567,7 @@ def _inpaint(values, weight, holes, mode, decay, eps, in_place=False):
     va = _a(values)
     inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
                         holes is not None, _a(out), _u8(hout)[0], lev1, nh, not inp)
-    return _inpaint_levels(out, hout, chain, nh, mode, decay, eps)
+    return _inpaint_levels(out, hout, chain, nh, mode, decay, eps, want_filled)
 
 
 def _chain(c1, h, w):
@@ -580,18 +580,19 @@ def _chain(c1, h, w):
     return buf, hs, ws, offs, buf[:offs[2]].reshape(c1, int(hs[1]), int(ws[1]))
 
 
-def _inpaint_levels(out, hout, chain, nh, mode, decay, eps):
+def _inpaint_levels(out, hout, chain, nh, mode, decay, eps, want_filled=True):
     """pyramid_inpaint's kernel path after its dense part (out: the sanitised values,
     hout (1, H, W) the holes, chain = _chain(...)[:4] with level 1 and nh from
     inpaint_prep_kernel): the hole indices, the coarser levels (pool_chain_kernel) and the
-    fill (fill_levels_kernel: fill_from_levels' values), in place on out."""
+    fill (fill_levels_kernel: fill_from_levels' values), in place on out. Returns (out,
+    filled), filled None unless want_filled (a 2 MB plane zeroed per 1080p call)."""
     from fgcli.kernels.pyramid import fill_levels_kernel, hole_index_kernel, pool_chain_kernel
 
     h, w = out.shape[-2:]
     start = np.zeros(nh.size + 1, dtype=np.int64)
     np.cumsum(nh, out=start[1:])
     n = int(start[-1])
-    filled = torch.zeros(1, h, w, dtype=torch.bool)
+    filled = torch.zeros(1, h, w, dtype=torch.bool) if want_filled else None
     if n == 0:
         return out, filled
     idx = np.empty(n, dtype=np.int64)
@@ -606,8 +607,9 @@ def _inpaint_levels(out, hout, chain, nh, mode, decay, eps):
             break
         nb += 1
         ms[nb] = m
-    fill_levels_kernel(buf, hs, ws, offs, idx, ms, nb, F32(eps), _a(out).reshape(out.shape[0], -1),
-                       _u8(filled).reshape(-1))
+    fl = _u8(filled).reshape(-1) if want_filled else np.empty(0, dtype=np.uint8)
+    fill_levels_kernel(buf, hs, ws, offs, idx, ms, nb, F32(eps),
+                       _a(out).reshape(out.shape[0], -1), fl)
     return out, filled
 
 
@@ -635,7 +637,7 @@ def fill_packed_field(field):
                            _u8(valid)[0], lev1, nh)
     if not nh.any():
         return out, valid
-    return _inpaint_levels(out, hout, chain, nh, "first", 10.0, 1e-12)[0], valid
+    return _inpaint_levels(out, hout, chain, nh, "first", 10.0, 1e-12, False)[0], valid
 
 
 def inpaint_color(color, holes, decay=10.0, in_place=False):
@@ -651,7 +653,7 @@ def inpaint_color(color, holes, decay=10.0, in_place=False):
         return FS.inpaint_color(color, holes, decay, pool=avg_pool2, inpaint=pyramid_inpaint)
     if not (decay > 0):
         raise ValueError(f"decay: expected > 0, got {decay!r}")
-    out, _ = _inpaint(color, None, holes, "blend", decay, 1e-12, in_place)
+    out, _ = _inpaint(color, None, holes, "blend", decay, 1e-12, in_place, False)
     return out
 
 
@@ -740,6 +742,7 @@ _TASKS = (
     ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
     ("fsr3", lambda i: avg_pool2(i["c"])),
     ("fsr3", lambda i: luma8(i["c"])),
+    ("fsr3", lambda i: luma8_u8(i["c"])),
     ("fsr3", lambda i: depth_priority(i["d"])),
     ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
     ("fsr3", lambda i: field_luminance(i["c"])),
@@ -828,7 +831,7 @@ def _warm_kernels(families=None) -> tuple:
                     pyramid.inpaint_prep_kernel, field.field_fill_prep_kernel,
                     pyramid.hole_index_kernel, pyramid.pool_chain_kernel,
                     pyramid.fill_levels_kernel,
-                    flow.luma8_kernel,
+                    flow.luma8_kernel, flow.luma8_u8_kernel,
                     field.entries_prio_kernel, field.agreement_block_kernel,
                     field.field_scatter_block_kernel, field.field_scatter_prio_kernel,
                     field.field_walk_prio_kernel,
@@ -991,11 +994,16 @@ def _block_flow_u8(lum0, lum1, levels, median):
                                     vector_median3_kernel)
     from fgcli.ops import fsr3 as FS
 
-    lum0 = FS.check_tensor(lum0, "lum0", 1, allow_batch=False)
-    lum1 = FS.check_tensor(lum1, "lum1", 1, allow_batch=False)
-    FS.check_same(lum0, "lum0", (lum1, "lum1"))
+    if not (lum0.dtype == lum1.dtype == torch.uint8 and lum0.dim() == 3 and
+            lum0.shape == lum1.shape and lum0.shape[0] == 1 and lum0.numel() > 0):
+        lum0 = FS.check_tensor(lum0, "lum0", 1, allow_batch=False)
+        lum1 = FS.check_tensor(lum1, "lum1", 1, allow_batch=False)
+        FS.check_same(lum0, "lum0", (lum1, "lum1"))
     pyr = []
     for lum in (lum0, lum1):
+        if lum.dtype == torch.uint8:  # (luma8_u8's bytes: the level as it is)
+            pyr.append([_a(lum)[0]])
+            continue
         lv = np.empty(lum.shape[-2:], dtype=np.uint8)
         luma_u8_kernel(_a(lum)[0], lv)
         pyr.append([lv])
@@ -1041,6 +1049,22 @@ def luma8(color):
     out = _empty(1, h, w)
     base, thr, b0 = FS.luma8_table()
     luma8_kernel(_a(color), base, thr, np.int64(b0), np.int64(FS.LUMA8_SHIFT), out.numpy()[0])
+    return out
+
+
+def luma8_u8(color):
+    """fgcli.ops.fsr3.luma8_u8 by one kernel (luma8's, bytes out)."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (_f32cpu(color) and color.shape[0] == 3):
+        return FS.luma8_u8(color)
+    from fgcli.kernels.flow import luma8_u8_kernel
+
+    h, w = color.shape[-2:]
+    out = _empty(1, h, w, dtype=torch.uint8)
+    base, thr, b0 = FS.luma8_table()
+    luma8_u8_kernel(_a(color), base, thr, np.int64(b0), np.int64(FS.LUMA8_SHIFT),
+                    out.numpy()[0])
     return out
 
 

@@ -221,11 +221,13 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
     taken where its weight exceeds eps (float32), divided by the weight clamped at eps;
     then (and for 'first', nb = 0) the first level whose sampled weight exceeds eps.
     out (C, H * W) takes the sanitised result at each hole (0 where nothing holds any
-    weight), filled (H * W,) uint8 1 where a level served (the rest is not written)."""
+    weight), filled (H * W,) uint8 1 where a level served (the rest is not written;
+    filled of size 0: not wanted)."""
     c = out.shape[0]
     w = ws[0]
     nl = hs.shape[0]
     n = idx.shape[0]
+    want = filled.shape[0] > 0
     nch = (n + 1023) // 1024
     for pc in prange(nch):
         j0 = np.int64(pc) * 1024
@@ -262,5 +264,5 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
                 i += 1
             for k in range(c):
                 out[k, q] = sval_b(res[k])
-            if done:
+            if done and want:
                 filled[q] = U1

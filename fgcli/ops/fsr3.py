@@ -424,6 +424,13 @@ def luma8(color: torch.Tensor) -> torch.Tensor:
     return base[i] + (y >= thr[i]).float()
 
 
+def luma8_u8(color: torch.Tensor) -> torch.Tensor:
+    """luma8 as bytes, (1, H, W) uint8 (its values are whole numbers 0..255): block_flow
+    takes it as it is (the numba backend's search reads bytes: no float plane written and
+    converted back)."""
+    return luma8(color).to(torch.uint8)
+
+
 def _vector_median3(f: torch.Tensor) -> torch.Tensor:
     """3x3 vector median (the neighbour minimising the summed L1 distance to the others;
     edge-replicated). (2, h, w) -> (2, h, w)."""

@@ -157,9 +157,11 @@ class FSR3OpticalFlow(Stage):
         if memo is not None and memo.get("pair") == key:
             f, hi = memo["f"], memo["hi"]
         else:
+            # (the block search reads bytes: luma8's whole numbers 0..255 as uint8)
+            luma8 = op("luma8" if self.flow == "dis" else "luma8_u8", ctx)
             l0 = memo["luma"][1] if memo is not None and memo.get("luma", (None,))[0] == \
-                (n0, key[2]) else op("luma8", ctx)(c0)  # frame 0 was the last pair's frame 1
-            l1 = op("luma8", ctx)(c1)
+                (n0, key[2], self.flow) else luma8(c0)  # frame 0 was the last pair's frame 1
+            l1 = luma8(c1)
             f = dis_flow(l0, l1) if self.flow == "dis" else \
                 op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
                                       self.subpixel)
@@ -167,7 +169,7 @@ class FSR3OpticalFlow(Stage):
                 f = f * ((f * f).sum(dim=0, keepdim=True).sqrt() > self.min_flow)
             hi = magnitude_priority(f)
             if memo is not None:
-                memo.update(pair=key, f=f, hi=hi, luma=((n1, key[2]), l1))
+                memo.update(pair=key, f=f, hi=hi, luma=((n1, key[2], self.flow), l1))
         if self.flow != "dis" and self.field == "block":
             # the SDK's: the field on the block grid (32,400 texels at 1080p; torch on both
             # backends), sampled per pixel
