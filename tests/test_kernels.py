@@ -835,6 +835,32 @@ def test_fsr3_block_vector_field(h, w):
                      fsr3.vector_field(c0, c1, f, hi, a, sec, block=b), ref)
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
+def test_fsr3_game_vector_field(h, w):
+    """The game field with its depth priorities made inside the priority kernel: the
+    reference's depth_priority then vector_field, exactly (sky, NaN, zero and negative
+    depths, huge, NaN and inf vectors; with and without the walk, given luma0 or not); a
+    depth of another size is refused, naming it, on both backends."""
+    from fgcli.ops import fsr3
+
+    c0, c1, v, d = _fsr3_inputs(h, w, h * 11 + w)
+    d.view(-1)[5::9] = -2.0
+    d.view(-1)[7::13] = 1e-30
+    d.view(-1)[8::17] = 3e38
+    l0 = K.field_luminance(c0)
+    for a in (0.5, 0.25):
+        for sec in (False, True):
+            ref = fsr3.vector_field(c0, c1, v, fsr3.depth_priority(d), a, sec)
+            same(f"reference {a} {sec}", fsr3.game_vector_field(c0, c1, v, d, a, sec), ref)
+            for lum in (None, l0):
+                f = K.game_vector_field(c0, c1, v, d, a, sec, luma0=lum)
+                assert f.dtype == torch.uint32
+                same(f"kernels {a} {sec} {lum is None}", f.to(torch.int64), ref)
+    for fn in (K.game_vector_field, fsr3.game_vector_field):
+        with pytest.raises(ValueError, match="depth"):
+            fn(c0, c1, v, torch.ones(1, h + 1, w), 0.5)
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (5, 9), (1, 1)])
 def test_fsr3_field_luminance_shared(h, w):
     """Frame 0's luminance plane computed once for both fields (vector_field's luma0):

@@ -31,6 +31,7 @@ KERNEL_OPS = {
     "guiding_flows": "fgcli.ops.mvinterp",
     "block_flow": "fgcli.ops.fsr3",
     "vector_field": "fgcli.ops.fsr3",
+    "game_vector_field": "fgcli.ops.fsr3",
     "reconstruct_depths": "fgcli.ops.fsr3",
     # gffe: the ops whose camera geometry (unproject / project) runs in fgcli.kernels.geom
     "unproject": "fgcli.ops.gffe",

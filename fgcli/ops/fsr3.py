@@ -168,6 +168,20 @@ def depth_priority(depth: torch.Tensor) -> torch.Tensor:
     return 1023 - step.to(torch.int64)
 
 
+def game_vector_field(color0: torch.Tensor, color1: torch.Tensor, vec: torch.Tensor,
+                      depth: torch.Tensor, alpha: float = 0.5, secondary: bool = True,
+                      max_secondary: int = 64, tap_threshold: float = TAP_THRESHOLD,
+                      length_bound: float | None = None,
+                      luma0: torch.Tensor | None = None) -> torch.Tensor:
+    """The GameMotionVectorField pass: vector_field of the game vectors with
+    depth_priority(depth) as their priorities (the numba backend makes the priorities
+    inside its priority kernel). depth: (1, H, W), frame 1's size."""
+    check_same(check_tensor(vec, "vec", 2, allow_batch=False), "vec",
+               (check_tensor(depth, "depth", 1, allow_batch=False), "depth"))
+    return vector_field(color0, color1, vec, depth_priority(depth), alpha, secondary,
+                        max_secondary, tap_threshold, length_bound, luma0=luma0)
+
+
 def magnitude_priority(vec: torch.Tensor, scale: float = 8.0) -> torch.Tensor:
     """10-bit priority of an optical-flow vector from its magnitude m (px): moving content
     wins over static, ``max(1, floor(1023 m / (m + scale)))``. (2, ...) -> (1, ...) int64."""

@@ -75,14 +75,15 @@ class FSR3GameField(Stage):
     def run(self, ctx):
         from fgcli.kernels import op
 
-        vector_field = op("vector_field", ctx)
-        hi = op("depth_priority", ctx)(ctx["depth1_d"])
+        # (the priorities: depth_priority of the dilated depth)
+        vector_field = op("game_vector_field", ctx)
         # frame 0's luminance plane, which the optical-flow field reads too
         l0 = op("field_luminance", ctx)(ctx["color0"])
         # the per-frame facts' largest vector component (GPU path) bounds the walk
         m = (ctx.get("facts") or {}).get("mv1_absmax")
-        return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"], hi,
-                                           ctx["alpha"], self.secondary, self.max_secondary,
+        return {"game_field": vector_field(ctx["color0"], ctx["color1"], ctx["mv1_d"],
+                                           ctx["depth1_d"], ctx["alpha"], self.secondary,
+                                           self.max_secondary,
                                            length_bound=None if m is None else m * 2 ** 0.5,
                                            luma0=l0),
                 "field_luma0": l0}
