@@ -193,11 +193,12 @@ def hole_index_kernel(hout, start, idx):
 
 
 @njit(**INLINE)
-def _chain_sample(chain, o, hl, wl, c1, s, xf, yf, smp):
-    """level_sample_kernel at one pixel (xf, yf) of level (c1, hl, wl) starting at
-    chain[o], scale s = 2**i: smp[0:c1] (the same float32 ops)."""
-    gx = (((xf + F32(0.5)) / s) / F32(wl)) * F32(2.0) - F32(1.0)
-    gy = (((yf + F32(0.5)) / s) / F32(hl)) * F32(2.0) - F32(1.0)
+def _chain_sample(chain, o, hl, wl, c1, inv, xf, yf, smp):
+    """fgcli.ops.pyramid._sample_level at one pixel (xf, yf) of level (c1, hl, wl)
+    starting at chain[o], inv = 2**-i: smp[0:c1] (its float32 ops; the division by 2**i
+    as the product with inv, which is exact: the same values)."""
+    gx = (((xf + F32(0.5)) * inv) / F32(wl)) * F32(2.0) - F32(1.0)
+    gy = (((yf + F32(0.5)) * inv) / F32(hl)) * F32(2.0) - F32(1.0)
     y0, x0, y1, x1, nw, ne, sw, se = _grid_coords(gx, gy, F32(wl * 0.5), F32(hl * 0.5),
                                                   F32(wl - 1), F32(hl - 1), wl, hl)
     i00 = o + y0 * wl + x0
@@ -228,13 +229,13 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
     nl = hs.shape[0]
     n = idx.shape[0]
     want = filled.shape[0] > 0
-    nch = (n + 1023) // 1024
+    nch = (n + 255) // 256  # (small chunks: holes deep in a hole read more levels)
     for pc in prange(nch):
-        j0 = np.int64(pc) * 1024
+        j0 = np.int64(pc) * 256
         acc = np.empty(c + 1, dtype=np.float32)
         smp = np.empty(c + 1, dtype=np.float32)
         res = np.empty(c, dtype=np.float32)
-        for j in range(j0, min(n, j0 + 1024)):
+        for j in range(j0, min(n, j0 + 256)):
             q = idx[j]
             y = q // w
             xf = F32(q - y * w)
@@ -246,7 +247,7 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
                 for k in range(c + 1):
                     acc[k] = F32(0.0)
                 for i in range(1, nb + 1):
-                    _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(2.0 ** i), xf, yf,
+                    _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(0.5 ** i), xf, yf,
                                   smp)
                     for k in range(c + 1):
                         acc[k] = fma(smp[k], ms[i], acc[k])
@@ -256,7 +257,7 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
                     done = True
             i = 1
             while not done and i < nl:
-                _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(2.0 ** i), xf, yf, smp)
+                _chain_sample(chain, offs[i], hs[i], ws[i], c + 1, F32(0.5 ** i), xf, yf, smp)
                 if smp[c] > eps:
                     for k in range(c):
                         res[k] = smp[k] / smp[c]
