@@ -486,7 +486,7 @@ def test_vector_median_is_the_references():
     from fgcli.ops import fsr3
 
     g = torch.Generator().manual_seed(12)
-    for h, w in ((1, 1), (1, 7), (5, 1), (17, 30), (135, 240)):
+    for h, w in ((1, 1), (1, 7), (5, 1), (4, 2), (2, 3), (17, 30), (135, 240)):
         for scale in (2, 9, 3000):
             f = torch.randint(-scale, scale + 1, (2, h, w), generator=g).float()
             assert torch.equal(K._median3(f), fsr3._vector_median3(f)), (h, w, scale)

@@ -216,31 +216,53 @@ def vector_median3_kernel(f, out):
     distance to all nine is least, the centre's sum less 1e-3 (float32, as the reference:
     ties prefer the centre), the first of equal sums otherwise. The sums are of whole
     numbers below 2**24 (any order gives the same float32), and the centre's 1e-3 is
-    taken off in float32 like the reference's, so the choice is the reference's."""
+    taken off in float32 like the reference's, so the choice is the reference's. A row
+    at a time, each candidate's sum over the row's pixels in a vector loop (the sums in
+    the order a pixel-by-pixel loop takes them)."""
     h, w = f.shape[1], f.shape[2]
     for py in prange(h):
         y = np.int64(py)
-        vx = np.empty(9, dtype=np.float32)
-        vy = np.empty(9, dtype=np.float32)
+        NX = np.empty((9, w), dtype=np.float32)  # the neighbours t of each pixel
+        NY = np.empty((9, w), dtype=np.float32)
+        C = np.empty(w, dtype=np.float32)
+        BC = np.empty(w, dtype=np.float32)
+        OX = np.empty(w, dtype=np.float32)
+        OY = np.empty(w, dtype=np.float32)
+        for t in range(9):
+            yy = min(max(y + t // 3 - 1, 0), h - 1)
+            o = t % 3 - 1
+            for k in range(2):
+                src = f[k, yy]
+                dst = NX[t] if k == 0 else NY[t]
+                if w >= 3:  # the interior as row views (no clamped, gathered indices)
+                    dst[1:w - 1] = src[1 + o:w - 1 + o]
+                    dst[0] = src[max(o, 0)]
+                    dst[w - 1] = src[min(w - 1 + o, w - 1)]
+                else:
+                    for x in range(w):
+                        dst[x] = src[min(max(x + o, 0), w - 1)]
+        for i in range(9):
+            xi = NX[i]
+            yi = NY[i]
+            for x in range(w):
+                C[x] = F32(0.0)
+            for j in range(9):
+                xj = NX[j]
+                yj = NY[j]
+                for x in range(w):
+                    C[x] += abs(xj[x] - xi[x]) + abs(yj[x] - yi[x])
+            if i == 4:
+                for x in range(w):
+                    C[x] = C[x] - F32(1e-3)
+            for x in range(w):
+                t = (i == 0) | (C[x] < BC[x])
+                BC[x] = C[x] if t else BC[x]
+                OX[x] = xi[x] if t else OX[x]
+                OY[x] = yi[x] if t else OY[x]
         for x in range(w):
-            for t in range(9):
-                yy = min(max(y + t // 3 - 1, 0), h - 1)
-                xx = min(max(x + t % 3 - 1, 0), w - 1)
-                vx[t] = f[0, yy, xx]
-                vy[t] = f[1, yy, xx]
-            best = 0
-            bc = F32(0.0)
-            for i in range(9):
-                c = F32(0.0)
-                for j in range(9):
-                    c += abs(vx[j] - vx[i]) + abs(vy[j] - vy[i])
-                if i == 4:
-                    c = c - F32(1e-3)
-                if i == 0 or c < bc:
-                    bc = c
-                    best = i
-            out[0, y, x] = vx[best]
-            out[1, y, x] = vy[best]
+            out[0, y, x] = OX[x]
+            out[1, y, x] = OY[x]
+
 
 
 # ----------------------------------------------------------------------------- pyramid
