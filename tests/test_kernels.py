@@ -441,6 +441,7 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
     (50, 70, 4, 5, 3, True),      # other block and search sizes (the generic loop)
     (1, 1, 7, 8, 8, True),        # one pixel
     (9, 300, 7, 8, 2, True),      # wide and flat: a single level
+    (544, 960, 7, 8, 8, True),    # levels large enough for the chain's parallel loops
 ])
 def test_block_flow(h, w, levels, block, search, median):
     """The block search is integer arithmetic: equal to the reference exactly, on any CPU

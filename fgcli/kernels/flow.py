@@ -166,6 +166,33 @@ def _order_keys():
 _ORDER = _order_keys()
 
 
+@njit(**INLINE)
+def _search_row(cur, prev, pred, out, by, cb, wb):
+    """block_search_sad_kernel's block row by (cb, wb: its block and window buffers)."""
+    h, w = cur.shape
+    nbx = pred.shape[2]
+    cf = cur.reshape(h * w)
+    pf = prev.reshape(h * w)
+    for bx in range(nbx):
+        oy = by * 8
+        ox = bx * 8
+        py = pred[1, by, bx]
+        px = pred[0, by, bx]
+        y0 = oy + py - 8
+        x0 = ox + px - 8
+        if oy + 8 <= h and ox + 16 <= w and y0 >= 0 and y0 + 23 <= h and x0 >= 0 \
+                and x0 + 24 <= w:  # in place (16 block bytes and 24 window bytes read)
+            csrc, coff, cst = cf, oy * w + ox, w
+            wsrc, woff, wst = pf, y0 * w + x0, w
+        else:
+            _block_window(cur, prev, oy, ox, py, px, 8, 8, cb, 16, wb, 24)
+            csrc, coff, cst = cb, np.int64(0), np.int64(16)
+            wsrc, woff, wst = wb, np.int64(0), np.int64(24)
+        t = sad_search8(wsrc, woff, wst, csrc, coff, cst, _ORDER) & 255
+        out[0, by, bx] = px + (t & 15) - 8
+        out[1, by, bx] = py + (t >> 4) - 8
+
+
 @njit(**KERNEL)
 def block_search_sad_kernel(cur, prev, pred, out):
     """block_search_kernel for FSR 3's sizes (8x8 blocks, offsets -8..7) on x86: cur, prev
@@ -179,34 +206,56 @@ def block_search_sad_kernel(cur, prev, pred, out):
     block but those at the edges); only the others are copied, edge-replicated. 1080p
     level: 10.1 ms (window copies, SADs to memory, a compare per offset) -> 2.5 ms
     (AVX2)."""
-    h, w = cur.shape
-    nby = pred.shape[1]
-    nbx = pred.shape[2]
-    cf = cur.reshape(h * w)
-    pf = prev.reshape(h * w)
-    order = _ORDER
-    for pby in prange(nby):
+    for pby in prange(pred.shape[1]):
         by = np.int64(pby)  # prange indices are unsigned: keep index arithmetic signed
         cb = np.zeros(8 * 16, dtype=np.uint8)  # block rows of 16 bytes (8 used)
         wb = np.zeros(23 * 24, dtype=np.uint8)  # window rows of 24 bytes (23 used)
-        for bx in range(nbx):
-            oy = by * 8
-            ox = bx * 8
-            py = pred[1, by, bx]
-            px = pred[0, by, bx]
-            y0 = oy + py - 8
-            x0 = ox + px - 8
-            if oy + 8 <= h and ox + 16 <= w and y0 >= 0 and y0 + 23 <= h and x0 >= 0 \
-                    and x0 + 24 <= w:  # in place (16 block bytes and 24 window bytes read)
-                csrc, coff, cst = cf, oy * w + ox, w
-                wsrc, woff, wst = pf, y0 * w + x0, w
+        _search_row(cur, prev, pred, out, by, cb, wb)
+
+
+@njit(**INLINE)
+def _median_row(f, out, y, NX, NY, C, BC, OX, OY):
+    """vector_median3_kernel's row y (NX, NY (9, w), C, BC, OX, OY (w,): its buffers)."""
+    h, w = f.shape[1], f.shape[2]
+    for t in range(9):
+        yy = min(max(y + t // 3 - 1, 0), h - 1)
+        o = t % 3 - 1
+        for k in range(2):
+            src = f[k, yy]
+            dst = NX[t] if k == 0 else NY[t]
+            if w >= 3:  # the interior through row views (no clamped, gathered indices;
+                # a loop, not a slice assignment, which numba makes a parallel region of
+                # its own outside a prange)
+                di = dst[1:w - 1]
+                si = src[1 + o:w - 1 + o]
+                for x in range(w - 2):
+                    di[x] = si[x]
+                dst[0] = src[max(o, 0)]
+                dst[w - 1] = src[min(w - 1 + o, w - 1)]
             else:
-                _block_window(cur, prev, oy, ox, py, px, 8, 8, cb, 16, wb, 24)
-                csrc, coff, cst = cb, np.int64(0), np.int64(16)
-                wsrc, woff, wst = wb, np.int64(0), np.int64(24)
-            t = sad_search8(wsrc, woff, wst, csrc, coff, cst, order) & 255
-            out[0, by, bx] = px + (t & 15) - 8
-            out[1, by, bx] = py + (t >> 4) - 8
+                for x in range(w):
+                    dst[x] = src[min(max(x + o, 0), w - 1)]
+    for i in range(9):
+        xi = NX[i]
+        yi = NY[i]
+        for x in range(w):
+            C[x] = F32(0.0)
+        for j in range(9):
+            xj = NX[j]
+            yj = NY[j]
+            for x in range(w):
+                C[x] += abs(xj[x] - xi[x]) + abs(yj[x] - yi[x])
+        if i == 4:
+            for x in range(w):
+                C[x] = C[x] - F32(1e-3)
+        for x in range(w):
+            t = (i == 0) | (C[x] < BC[x])
+            BC[x] = C[x] if t else BC[x]
+            OX[x] = xi[x] if t else OX[x]
+            OY[x] = yi[x] if t else OY[x]
+    for x in range(w):
+        out[0, y, x] = OX[x]
+        out[1, y, x] = OY[x]
 
 
 @njit(**KERNEL)
@@ -222,46 +271,11 @@ def vector_median3_kernel(f, out):
     h, w = f.shape[1], f.shape[2]
     for py in prange(h):
         y = np.int64(py)
-        NX = np.empty((9, w), dtype=np.float32)  # the neighbours t of each pixel
-        NY = np.empty((9, w), dtype=np.float32)
-        C = np.empty(w, dtype=np.float32)
-        BC = np.empty(w, dtype=np.float32)
-        OX = np.empty(w, dtype=np.float32)
-        OY = np.empty(w, dtype=np.float32)
-        for t in range(9):
-            yy = min(max(y + t // 3 - 1, 0), h - 1)
-            o = t % 3 - 1
-            for k in range(2):
-                src = f[k, yy]
-                dst = NX[t] if k == 0 else NY[t]
-                if w >= 3:  # the interior as row views (no clamped, gathered indices)
-                    dst[1:w - 1] = src[1 + o:w - 1 + o]
-                    dst[0] = src[max(o, 0)]
-                    dst[w - 1] = src[min(w - 1 + o, w - 1)]
-                else:
-                    for x in range(w):
-                        dst[x] = src[min(max(x + o, 0), w - 1)]
-        for i in range(9):
-            xi = NX[i]
-            yi = NY[i]
-            for x in range(w):
-                C[x] = F32(0.0)
-            for j in range(9):
-                xj = NX[j]
-                yj = NY[j]
-                for x in range(w):
-                    C[x] += abs(xj[x] - xi[x]) + abs(yj[x] - yi[x])
-            if i == 4:
-                for x in range(w):
-                    C[x] = C[x] - F32(1e-3)
-            for x in range(w):
-                t = (i == 0) | (C[x] < BC[x])
-                BC[x] = C[x] if t else BC[x]
-                OX[x] = xi[x] if t else OX[x]
-                OY[x] = yi[x] if t else OY[x]
-        for x in range(w):
-            out[0, y, x] = OX[x]
-            out[1, y, x] = OY[x]
+        _median_row(f, out, y, np.empty((9, w), dtype=np.float32),
+                    np.empty((9, w), dtype=np.float32), np.empty(w, dtype=np.float32),
+                    np.empty(w, dtype=np.float32), np.empty(w, dtype=np.float32),
+                    np.empty(w, dtype=np.float32))
+
 
 
 
@@ -296,31 +310,149 @@ def _round_mean(s, c):
     return q + (q & 1) if r2 == c else q
 
 
-@njit(**KERNEL)
-def pool2_u8_kernel(src, dst):
-    """dst = round(avg_pool2d(src, 2, ceil_mode=True)) of a uint8 level (the children that
-    exist: the last row / column of an odd size averages what is there), exactly the
-    reference's float32 level."""
+@njit(**INLINE)
+def _pool_u8_row(src, dst, oy):
+    """Output row oy of dst = round(avg_pool2d(src, 2, ceil_mode=True)) of a uint8 level
+    (the children that exist: the last row / column of an odd size averages what is
+    there), exactly the reference's float32 level."""
     h, w = src.shape
-    h2, w2 = dst.shape
+    w2 = dst.shape[1]
     wf = w // 2
-    for poy in prange(h2):
-        oy = np.int64(poy)
-        y0 = 2 * oy
-        if y0 + 1 < h:
-            for ox in range(wf):
-                s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1]) + \
-                    np.int32(src[y0 + 1, 2 * ox]) + np.int32(src[y0 + 1, 2 * ox + 1])
-                dst[oy, ox] = np.uint8(_round_mean(s, np.int32(4)))
-            if wf < w2:
-                s = np.int32(src[y0, w - 1]) + np.int32(src[y0 + 1, w - 1])
-                dst[oy, wf] = np.uint8(_round_mean(s, np.int32(2)))
+    y0 = 2 * oy
+    if y0 + 1 < h:
+        for ox in range(wf):
+            s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1]) + \
+                np.int32(src[y0 + 1, 2 * ox]) + np.int32(src[y0 + 1, 2 * ox + 1])
+            dst[oy, ox] = np.uint8(_round_mean(s, np.int32(4)))
+        if wf < w2:
+            s = np.int32(src[y0, w - 1]) + np.int32(src[y0 + 1, w - 1])
+            dst[oy, wf] = np.uint8(_round_mean(s, np.int32(2)))
+    else:
+        for ox in range(wf):
+            s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1])
+            dst[oy, ox] = np.uint8(_round_mean(s, np.int32(2)))
+        if wf < w2:
+            dst[oy, wf] = src[y0, w - 1]
+
+
+def flow_chain_layout(h: int, w: int, levels: int):
+    """The block flow's pyramid (fgcli.kernels.ops._block_flow_u8: levels while both sides
+    are 16 px or more, at most ``levels``) and its block fields, as flat buffers: (hs, ws,
+    offs) of the byte levels (level i >= 1 at offs[i]:offs[i + 1]; level 0 is the
+    luminance itself), (bh, bw, boffs) of the (2, bh[i], bw[i]) float32 fields, int64."""
+    hs, ws = [h], [w]
+    while len(hs) < levels and min(hs[-1], ws[-1]) >= 16:
+        hs.append((hs[-1] + 1) // 2)
+        ws.append((ws[-1] + 1) // 2)
+    offs, boffs = [0, 0], [0]
+    for i in range(1, len(hs)):
+        offs.append(offs[-1] + hs[i] * ws[i])
+    bh = [-(-x // 8) for x in hs]
+    bw = [-(-x // 8) for x in ws]
+    for i in range(len(hs)):
+        boffs.append(boffs[-1] + 2 * bh[i] * bw[i])
+    return tuple(np.array(v, dtype=np.int64) for v in (hs, ws, offs, bh, bw, boffs))
+
+
+# the levels of fewer pixels / blocks than these run on one thread (waking the second costs
+# 10-35 us here: more than a small level's work)
+_PAR_POOL = 1 << 16
+_PAR_SEARCH = 1024
+_PAR_MEDIAN = 4096
+
+
+@njit(**INLINE)
+def _level_u8(l0, buf, hs, ws, offs, i):
+    """Byte level i of a frame: its luminance l0 (i = 0), else its place in buf."""
+    if i == 0:
+        return l0
+    return buf[offs[i]:offs[i + 1]].reshape((hs[i], ws[i]))
+
+
+@njit(**KERNEL)
+def block_flow_u8_kernel(l0, l1, buf0, buf1, hs, ws, offs, bh, bw, boffs, median, fbuf):
+    """fgcli.kernels.ops._block_flow_u8's whole chain in one call (flow_chain_layout): the
+    byte pyramids of both frames (_pool_u8_row's levels), then from the coarsest level
+    to the finest the block search (block_search_sad_kernel's, predicted by twice the
+    parent block's vector, the last row / column replicated) and the 3x3 vector median
+    (vector_median3_kernel's) into fbuf (level i's field at boffs[i], float32); the
+    small levels on one thread (_PAR_*: each call of a kernel woke the second thread, 28
+    calls per 1080p frame before). The same vectors."""
+    nl = hs.shape[0]
+    for i in range(1, nl):
+        h2 = hs[i]
+        if h2 * ws[i] >= _PAR_POOL:
+            for q in prange(2 * h2):
+                k = q // h2
+                src = _level_u8(l0 if k == 0 else l1, buf0 if k == 0 else buf1, hs, ws, offs,
+                                i - 1)
+                dst = _level_u8(l0, buf0 if k == 0 else buf1, hs, ws, offs, i)
+                _pool_u8_row(src, dst, np.int64(q - k * h2))
         else:
-            for ox in range(wf):
-                s = np.int32(src[y0, 2 * ox]) + np.int32(src[y0, 2 * ox + 1])
-                dst[oy, ox] = np.uint8(_round_mean(s, np.int32(2)))
-            if wf < w2:
-                dst[oy, wf] = src[y0, w - 1]
+            for k in range(2):
+                src = _level_u8(l0 if k == 0 else l1, buf0 if k == 0 else buf1, hs, ws, offs,
+                                i - 1)
+                dst = _level_u8(l0, buf0 if k == 0 else buf1, hs, ws, offs, i)
+                for q in range(h2):
+                    _pool_u8_row(src, dst, np.int64(q))
+    for lv in range(nl - 1, -1, -1):
+        nby = bh[lv]
+        nbx = bw[lv]
+        pred = np.empty((2, nby, nbx), dtype=np.int64)  # (np.zeros: a parallel region)
+        if lv == nl - 1:
+            for c in range(2):
+                for by in range(nby):
+                    for bx in range(nbx):
+                        pred[c, by, bx] = 0
+        else:  # the parent block's vector, twice
+            ph = bh[lv + 1]
+            pw = bw[lv + 1]
+            par = fbuf[boffs[lv + 1]:boffs[lv + 2]].reshape((2, ph, pw))
+            for c in range(2):
+                for by in range(nby):
+                    sy = min(by // 2, ph - 1)
+                    for bx in range(nbx):
+                        pred[c, by, bx] = np.int64(par[c, sy, min(bx // 2, pw - 1)]) * 2
+        cur = _level_u8(l1, buf1, hs, ws, offs, lv)
+        prev = _level_u8(l0, buf0, hs, ws, offs, lv)
+        out = np.empty((2, nby, nbx), dtype=np.int64)
+        if nby * nbx >= _PAR_SEARCH:
+            for pby in prange(nby):
+                _search_row(cur, prev, pred, out, np.int64(pby), np.zeros(8 * 16, np.uint8),
+                            np.zeros(23 * 24, np.uint8))
+        else:
+            cb = np.empty(8 * 16, dtype=np.uint8)
+            wb = np.empty(23 * 24, dtype=np.uint8)
+            for k in range(cb.shape[0]):
+                cb[k] = 0
+            for k in range(wb.shape[0]):
+                wb[k] = 0
+            for by in range(nby):
+                _search_row(cur, prev, pred, out, np.int64(by), cb, wb)
+        fl = fbuf[boffs[lv]:boffs[lv + 1]].reshape((2, nby, nbx))
+        raw = np.empty((2, nby, nbx), dtype=np.float32) if median else fl
+        for c in range(2):
+            for by in range(nby):
+                for bx in range(nbx):
+                    raw[c, by, bx] = F32(out[c, by, bx])
+        if median:
+            if nby * nbx >= _PAR_MEDIAN:
+                for py in prange(nby):
+                    _median_row(raw, fl, np.int64(py), np.empty((9, nbx), dtype=np.float32),
+                                np.empty((9, nbx), dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32))
+            else:
+                for y in range(nby):
+                    _median_row(raw, fl, np.int64(y), np.empty((9, nbx), dtype=np.float32),
+                                np.empty((9, nbx), dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32),
+                                np.empty(nbx, dtype=np.float32))
+
 
 
 # ----------------------------------------------------------------------------- luma8

@@ -675,16 +675,6 @@ def _inputs():
     return locals()
 
 
-def _warm_pyramid_u8():
-    """The block flow's byte pyramid level, which an 8x8 frame does not reach (frames of
-    16 px and up)."""
-    from fgcli.kernels._intrin import HAVE_MPSADBW
-    from fgcli.kernels.flow import pool2_u8_kernel
-
-    if HAVE_MPSADBW:
-        pool2_u8_kernel(np.zeros((8, 8), dtype=np.uint8), np.empty((4, 4), dtype=np.uint8))
-
-
 # every kernel call warm() makes, each tagged with its kernel family: "core" (mob-fgsr,
 # mv-warp, blend and the shared dilation / splat / gap fill), "fsr3", "gffe" (a run loads
 # the families its stages use). On a cold cache two processes take the tasks in this order,
@@ -736,13 +726,15 @@ _TASKS = (
     ("fsr3", lambda i: reconstruct_depths(i["d"], i["mv"])),
     ("fsr3", lambda i: interpolated_depth(i["d"] * INF, i["mv"], 0.5, i["d"], i["d"])),
     ("fsr3", lambda i: block_flow(i["c"][:1] * 255.0, i["c"][1:2] * 255.0, 2, 8, 8)),
-    ("fsr3", lambda i: _warm_pyramid_u8()),
     ("core", lambda i: crossfade(i["c"], i["c"], i["d"], i["d"], i["mv"], 0.5, 0.5)),
     ("core", lambda i: any_nonzero(i["mv"])),
     ("core", lambda i: scene_change_score_tensor(i["c"], i["c"])),
     ("fsr3", lambda i: avg_pool2(i["c"])),
     ("fsr3", lambda i: luma8(i["c"])),
     ("fsr3", lambda i: luma8_u8(i["c"])),
+    # (the per-level search and median: sub-pixel steps, other block sizes; the default
+    # block flow is one chain kernel)
+    ("fsr3", lambda i: block_flow(luma8(i["c"]), luma8(i["c"]), 7, 8, 8, True, True)),
     ("fsr3", lambda i: depth_priority(i["d"])),
     ("fsr3", lambda i: game_vector_field(i["c"], i["c"], i["mv"], i["d"])),
     ("fsr3", lambda i: output_vectors(i["mv"], 0.5)),
@@ -820,7 +812,7 @@ def _warm_kernels(families=None) -> tuple:
 
         if HAVE_MPSADBW:  # (each search kernel compiled only where it runs: FSR 3's sizes)
             kernels += (flow.block_search_sad_kernel, flow.luma_u8_kernel,
-                        flow.pool2_u8_kernel)
+                        flow.block_flow_u8_kernel)
         else:
             kernels += (flow.block_search_kernel,)
         kernels += (flow.vector_median3_kernel,
@@ -988,11 +980,12 @@ def block_flow(lum0, lum1, levels=7, block=8, search=8, median=True, subpixel=Fa
 
 def _block_flow_u8(lum0, lum1, levels, median):
     """fgcli.ops.fsr3.block_flow_chain for FSR 3's sizes (8x8 blocks, offsets -8..7, no
-    sub-pixel step) with the pyramids as bytes (fgcli.kernels.flow.luma_u8_kernel,
-    pool2_u8_kernel: the reference's whole-number levels, exactly) searched by the mpsadbw
-    kernel: no float32 levels, no per-level conversions. The same vectors."""
-    from fgcli.kernels.flow import (block_search_sad_kernel, luma_u8_kernel, pool2_u8_kernel,
-                                    vector_median3_kernel)
+    sub-pixel step) with the pyramids as bytes (luma8_u8's, or fgcli.kernels.flow's
+    luma_u8_kernel of float levels: the reference's whole-number levels, exactly) searched
+    by the mpsadbw kernel, the whole chain (pyramids, then search and median per level) in
+    one kernel call (block_flow_u8_kernel): no float32 levels, no per-level conversions,
+    no per-level calls. The same vectors."""
+    from fgcli.kernels.flow import block_flow_u8_kernel, flow_chain_layout, luma_u8_kernel
     from fgcli.ops import fsr3 as FS
 
     if not (lum0.dtype == lum1.dtype == torch.uint8 and lum0.dim() == 3 and
@@ -1000,41 +993,21 @@ def _block_flow_u8(lum0, lum1, levels, median):
         lum0 = FS.check_tensor(lum0, "lum0", 1, allow_batch=False)
         lum1 = FS.check_tensor(lum1, "lum1", 1, allow_batch=False)
         FS.check_same(lum0, "lum0", (lum1, "lum1"))
-    pyr = []
+    planes = []
     for lum in (lum0, lum1):
         if lum.dtype == torch.uint8:  # (luma8_u8's bytes: the level as it is)
-            pyr.append([_a(lum)[0]])
+            planes.append(_a(lum)[0])
             continue
         lv = np.empty(lum.shape[-2:], dtype=np.uint8)
         luma_u8_kernel(_a(lum)[0], lv)
-        pyr.append([lv])
-    p0, p1 = pyr
-    while len(p0) < levels and min(p0[-1].shape) >= 16:
-        for p in (p0, p1):
-            h, w = p[-1].shape
-            nxt = np.empty(((h + 1) // 2, (w + 1) // 2), dtype=np.uint8)
-            pool2_u8_kernel(p[-1], nxt)
-            p.append(nxt)
-    flow = None
-    for lv in range(len(p0) - 1, -1, -1):
-        h, w = p0[lv].shape
-        nby, nbx = -(-h // 8), -(-w // 8)
-        if flow is None:
-            pred = np.zeros((2, nby, nbx), dtype=np.int64)
-        else:  # the parent block's vector, twice (the last row / column replicated)
-            iy = np.minimum(np.arange(nby) // 2, flow.shape[1] - 1)
-            ix = np.minimum(np.arange(nbx) // 2, flow.shape[2] - 1)
-            # (C order: numpy's fancy index puts the channel axis last in memory, and a
-            # non-C array would make numba compile a second overload at the first frame)
-            pred = np.ascontiguousarray(flow[:, iy[:, None], ix[None, :]], dtype=np.int64) * 2
-        out = np.empty((2, nby, nbx), dtype=np.int64)
-        block_search_sad_kernel(p1[lv], p0[lv], pred, out)
-        flow = out.astype(np.float32)
-        if median:
-            med = np.empty_like(flow)
-            vector_median3_kernel(flow, med)
-            flow = med
-    return torch.from_numpy(flow)
+        planes.append(lv)
+    h, w = planes[0].shape
+    hs, ws, offs, bh, bw, boffs = flow_chain_layout(h, w, levels)
+    bufs = [np.empty(int(offs[-1]), dtype=np.uint8) for _ in range(2)]
+    fbuf = np.empty(int(boffs[-1]), dtype=np.float32)
+    block_flow_u8_kernel(planes[0], planes[1], bufs[0], bufs[1], hs, ws, offs, bh, bw, boffs,
+                         bool(median), fbuf)
+    return torch.from_numpy(fbuf[:int(boffs[1])].reshape(2, int(bh[0]), int(bw[0])))
 
 
 def luma8(color):
