@@ -214,9 +214,15 @@ def block_search_sad_kernel(cur, prev, pred, out):
 
 
 @njit(**INLINE)
-def _median_row(f, out, y, NX, NY, C, BC, OX, OY):
-    """vector_median3_kernel's row y (NX, NY (9, w), C, BC, OX, OY (w,): its buffers)."""
+def _median_row(f, out, y):
+    """vector_median3_kernel's row y."""
     h, w = f.shape[1], f.shape[2]
+    NX = np.empty((9, w), dtype=np.float32)  # the neighbours t of each pixel
+    NY = np.empty((9, w), dtype=np.float32)
+    C = np.empty(w, dtype=np.float32)
+    BC = np.empty(w, dtype=np.float32)
+    OX = np.empty(w, dtype=np.float32)
+    OY = np.empty(w, dtype=np.float32)
     for t in range(9):
         yy = min(max(y + t // 3 - 1, 0), h - 1)
         o = t % 3 - 1
@@ -268,13 +274,8 @@ def vector_median3_kernel(f, out):
     taken off in float32 like the reference's, so the choice is the reference's. A row
     at a time, each candidate's sum over the row's pixels in a vector loop (the sums in
     the order a pixel-by-pixel loop takes them)."""
-    h, w = f.shape[1], f.shape[2]
-    for py in prange(h):
-        y = np.int64(py)
-        _median_row(f, out, y, np.empty((9, w), dtype=np.float32),
-                    np.empty((9, w), dtype=np.float32), np.empty(w, dtype=np.float32),
-                    np.empty(w, dtype=np.float32), np.empty(w, dtype=np.float32),
-                    np.empty(w, dtype=np.float32))
+    for py in prange(f.shape[1]):
+        _median_row(f, out, np.int64(py))
 
 
 
@@ -362,6 +363,16 @@ _PAR_MEDIAN = 4096
 
 
 @njit(**INLINE)
+def _zeros_u8(n):
+    """np.zeros(n, np.uint8) by a loop (np.zeros is a parallel region of its own outside a
+    prange)."""
+    a = np.empty(n, dtype=np.uint8)
+    for k in range(n):
+        a[k] = 0
+    return a
+
+
+@njit(**INLINE)
 def _level_u8(l0, buf, hs, ws, offs, i):
     """Byte level i of a frame: its luminance l0 (i = 0), else its place in buf."""
     if i == 0:
@@ -418,15 +429,11 @@ def block_flow_u8_kernel(l0, l1, buf0, buf1, hs, ws, offs, bh, bw, boffs, median
         out = np.empty((2, nby, nbx), dtype=np.int64)
         if nby * nbx >= _PAR_SEARCH:
             for pby in prange(nby):
-                _search_row(cur, prev, pred, out, np.int64(pby), np.zeros(8 * 16, np.uint8),
-                            np.zeros(23 * 24, np.uint8))
+                _search_row(cur, prev, pred, out, np.int64(pby), _zeros_u8(8 * 16),
+                            _zeros_u8(23 * 24))
         else:
-            cb = np.empty(8 * 16, dtype=np.uint8)
-            wb = np.empty(23 * 24, dtype=np.uint8)
-            for k in range(cb.shape[0]):
-                cb[k] = 0
-            for k in range(wb.shape[0]):
-                wb[k] = 0
+            cb = _zeros_u8(8 * 16)
+            wb = _zeros_u8(23 * 24)
             for by in range(nby):
                 _search_row(cur, prev, pred, out, np.int64(by), cb, wb)
         fl = fbuf[boffs[lv]:boffs[lv + 1]].reshape((2, nby, nbx))
@@ -438,21 +445,10 @@ def block_flow_u8_kernel(l0, l1, buf0, buf1, hs, ws, offs, bh, bw, boffs, median
         if median:
             if nby * nbx >= _PAR_MEDIAN:
                 for py in prange(nby):
-                    _median_row(raw, fl, np.int64(py), np.empty((9, nbx), dtype=np.float32),
-                                np.empty((9, nbx), dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32))
+                    _median_row(raw, fl, np.int64(py))
             else:
                 for y in range(nby):
-                    _median_row(raw, fl, np.int64(y), np.empty((9, nbx), dtype=np.float32),
-                                np.empty((9, nbx), dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32),
-                                np.empty(nbx, dtype=np.float32))
-
+                    _median_row(raw, fl, np.int64(y))
 
 
 # ----------------------------------------------------------------------------- luma8
