@@ -482,21 +482,21 @@ def test_flow_is_computed_once_per_pair_with_the_same_result():
     p = pl.load("fsr3-interp")
     stages = p.build("interp")
     calls = []
-    real = FS.luma8
+    real = FS._luma8_code  # (luma8's codes: from a colour, or from the field's plane)
 
-    def counting(c):
+    def counting(y):
         calls.append(1)
-        return real(c)
+        return real(y)
 
     st = RunState()
     with torch.inference_mode():
-        FS.luma8, orig = counting, FS.luma8
+        FS._luma8_code, orig = counting, FS._luma8_code
         try:
             got = [pl.run_stages(stages, dict(make_ctx(f[i], f[i + 1], a, "interp"), state=st,
                                               prev_time=0.0))["color"]
                    for i in (0, 1) for a in (0.25, 0.75)]
         finally:
-            FS.luma8 = orig
+            FS._luma8_code = orig
         ref = [pl.run_stages(stages, dict(make_ctx(f[i], f[i + 1], a, "interp"), state=None,
                                           prev_time=0.0))["color"]
                for i in (0, 1) for a in (0.25, 0.75)]

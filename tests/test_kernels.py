@@ -1363,6 +1363,11 @@ def test_luma8_is_the_reference(h, w):
     k8, r8 = K.luma8_u8(c), fsr3.luma8_u8(c)
     assert k8.dtype == r8.dtype == torch.uint8
     assert torch.equal(k8, r8) and torch.equal(k8.float(), r_out)
+    # from the field's luminance plane (the optical-flow stage's frame 0): the same bytes
+    lum = fsr3.field_luminance(c)
+    kp, rp = K.luma8_u8_of(lum), fsr3.luma8_u8_of(lum)
+    assert kp.dtype == rp.dtype == torch.uint8
+    assert torch.equal(kp, r8) and torch.equal(rp, r8)
     if n >= 600:  # the boundaries were hit: both neighbours of some k + 1/2
         assert len(set(r_out.view(-1)[:m].tolist())) > 200
 

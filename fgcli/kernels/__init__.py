@@ -56,6 +56,7 @@ KERNEL_OPS = {
     "pyramid_inpaint": "fgcli.ops.pyramid",
     "luma8": "fgcli.ops.fsr3",
     "luma8_u8": "fgcli.ops.fsr3",
+    "luma8_u8_of": "fgcli.ops.fsr3",
     "depth_priority": "fgcli.ops.fsr3",
     "avg_pool2": "fgcli.ops.pyramid",
     "sample_flow_field": "fgcli.ops.fsr3",

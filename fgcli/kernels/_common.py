@@ -211,3 +211,24 @@ def sdepth_b(v):
     """sanitize_depth as selects."""
     r = F32(0.0) if v <= F32(0.0) else v
     return INF if v != v else r
+
+
+@njit(**INLINE)
+def step_code(v, tab, b0, sh, n1, bottom):
+    """A step table's value (fgcli.ops.fsr3.step_table: base[i] + (v >= thr[i])) at a
+    float32 v >= 0 from fgcli.kernels.ops.packed_steps' table: one int32 gather per value
+    instead of two (base and thr). Entry i = base[i] << (sh + 1) | the low sh bits of
+    thr[i] (1 << sh where the bucket has no step): v and thr[i] share bucket i's high bits,
+    so v >= thr[i] is the compare of their low bits (non-negative floats order as their
+    bits). Below bucket 0 the value is ``bottom`` (base[0]: thr[0] lies inside bucket 0);
+    above the last bucket its entry (no step there: packed_steps checks). b0, sh, n1,
+    bottom: int32 (the bucket of v's bits >> sh, minus b0; the last bucket's index)."""
+    bits = np.float32(v).view(np.int32)
+    i = (bits >> sh) - b0
+    below = i < np.int32(0)
+    i = np.int32(0) if below else (n1 if i > n1 else i)
+    e = tab[i]
+    m = (np.int32(1) << sh) - np.int32(1)
+    f = (np.int32(1) << (sh + np.int32(1))) - np.int32(1)
+    c = (e >> (sh + np.int32(1))) + np.int32((bits & m) >= (e & f))
+    return bottom if below else c

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, f2i64, sdepth_b, smv_b,
-                                   sval_b)
+                                   step_code, sval_b)
 from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x1, fmin16x2, ld32, mad32,
                                    umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
@@ -351,30 +351,26 @@ def _pack(prio, comp):
 
 
 @njit(**INLINE)
-def _depth_rank(dv, base, thr, b032, sh, n1):
+def _depth_rank(dv, tab, b0, sh, n1, bottom):
     """fgcli.ops.fsr3.depth_priority of one depth: d = sanitize_depth(dv), then its table
-    lookup: 1023 - (base[i] + (d >= thr[i])), i = (bits of d >> shift) - b0 clamped to the
-    table; depth 0 -> 1023. int32 arithmetic (d >= 0: its bits are too; step is 1..1023):
-    8-lane gathers, and a float -> int32 conversion, which AVX2 has (float -> int64 needs
-    AVX-512; LLVM made the loop scalar for it: 1080p, Zen 3, 4.2 -> 3.5 ms)."""
+    lookup (step_code: packed_steps(depth_priority_table), one int32 gather): 1023 - the
+    step; depth 0 -> 1023. int32 arithmetic (d >= 0: its bits are too; step is 1..1023):
+    16-lane gathers, and a float -> int32 conversion, which AVX2 has (float -> int64
+    needs AVX-512; LLVM made the loop scalar for it: 1080p, Zen 3, 4.2 -> 3.5 ms)."""
     v = sdepth_b(dv)
-    i = (np.float32(v).view(np.int32) >> sh) - b032
-    i = np.int32(0) if i < 0 else (n1 if i > n1 else i)
-    step = base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
-    return np.int32(1023) - (np.int32(step) if v > F32(0.0) else np.int32(0))
+    step = step_code(v, tab, b0, sh, n1, bottom)
+    return np.int32(1023) - (step if v > F32(0.0) else np.int32(0))
 
 
 @njit(**KERNEL)
-def depth_rank_kernel(depth, base, thr, b0, shift, hi):
+def depth_rank_kernel(depth, tab, b0, sh, bottom, hi):
     """fgcli.ops.fsr3.depth_priority (_depth_rank): hi (H, W) int64."""
     h, w = hi.shape
-    n1 = np.int32(base.shape[0] - 1)
-    b032 = np.int32(b0)
-    sh = np.int32(shift)
+    n1 = np.int32(tab.shape[0] - 1)
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
-            hi[y, x] = np.int64(_depth_rank(depth[y, x], base, thr, b032, sh, n1))
+            hi[y, x] = np.int64(_depth_rank(depth[y, x], tab, b0, sh, n1, bottom))
 
 
 @njit(**KERNEL)
@@ -540,19 +536,17 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
 
 @njit(**ROWS)
 def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB, YA,
-                       YB, Z, WT, s0, ins, depth, base, thr, b0, shift):
+                       YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom):
     """entries_prio_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = prio.shape
     fromd = depth.shape[0] > 0
-    n1 = np.int32(base.shape[0] - 1)
-    b032 = np.int32(b0)
-    sh = np.int32(shift)
+    n1 = np.int32(tab.shape[0] - 1)
     for y in range(ya, yb):
         _row_samples(l0, vec[0, y], vec[1, y], y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA,
                      YB, Z, WT)
         if fromd:  # the priorities from the depths as they go (no int64 plane)
             for x in range(w):
-                hv = np.int64(_depth_rank(depth[y, x], base, thr, b032, sh, n1))
+                hv = np.int64(_depth_rank(depth[y, x], tab, b0, sh, n1, bottom))
                 prio[y, x] = np.uint16(_prio(hv, _agreement(s0[x], _lum(c1, y, x), ins[x])))
         else:
             for x in range(w):
@@ -566,8 +560,8 @@ def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec,
 
 
 @njit(**KERNEL)
-def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, depth, base, thr,
-                        b0, shift):
+def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, depth, tab, b0,
+                        sh, bottom):
     """fgcli.ops.fsr3.field_entries' per-pixel part (l0: luma_plane_kernel's plane of
     frame 0, so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps
     are pair loads): frame 0's luminance read bilinearly at p + v (grid_sample's
@@ -575,8 +569,8 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
     WINDOW16), its 5-bit agreement with frame 1's luminance at p, and prio (H, W) uint16 =
     the 16-bit priority (primary flag | hi clamped to 10 bits | agreement). hi (H, W)
     int64, or with depth (H, W) (not empty: hi is not read) depth_rank_kernel's values
-    made here (base, thr, b0, shift: depth_priority's table; the game field's, without a
-    16 MB int64 plane written and read back per 1080p frame). With ``sec``: dist (H, W) =
+    made here (tab, b0, sh, bottom: packed_steps(depth_priority_table); the game field's,
+    without a 16 MB int64 plane written and read back per 1080p frame). With ``sec``: dist (H, W) =
     the squared length of (1 - alpha) v (the reference's products and sum); the caller
     takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom).
 
@@ -600,7 +594,7 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
         _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB,
-                           YA, YB, Z, WT, s0, ins, depth, base, thr, b0, shift)
+                           YA, YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom)
 
 
 @njit(**KERNEL)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL
+from fgcli.kernels._common import F32, INLINE, KERNEL, step_code
 from fgcli.kernels._intrin import sad_search8
 from fgcli.kernels.field import _lum
 
@@ -454,36 +454,47 @@ def block_flow_u8_kernel(l0, l1, buf0, buf1, hs, ws, offs, bh, bw, boffs, median
 # ----------------------------------------------------------------------------- luma8
 
 @njit(**INLINE)
-def _luma8_at(color, y, x, base, thr, b0, shift, n1):
-    """fgcli.ops.fsr3.luma8 of pixel (y, x): Y = clip(luminance(sanitize_values(color)),
-    0, 1) (NaN -> 0, +inf -> 1, -inf -> 0, as _clip01), then luma8_table's lookup:
-    base[i] + (Y >= thr[i]), i = (bits of Y >> shift) - b0 clamped to the table."""
-    v = _lum(color, y, x)
+def _luma8_of(v, tab, b0, sh, n1, bottom):
+    """luma8's code of a luminance v: Y = clip(v, 0, 1) (NaN -> 0, +inf -> 1, -inf -> 0,
+    as _clip01; field_luminance's plane, whose NaN -> 0 and +-inf -> +-BIG clip the same
+    way), then luma8_table's lookup (step_code: the packed table of
+    fgcli.kernels.ops.packed_steps, one int32 gather), as int32."""
     v = F32(0.0) if v != v else v
-    v = F32(1.0) if v > F32(1.0) else v  # (+inf -> 1)
-    v = F32(0.0) if v < F32(0.0) else v  # (-inf -> 0)
-    i = (np.int64(np.float32(v).view(np.int32)) >> shift) - b0
-    i = 0 if i < 0 else (n1 if i > n1 else i)
-    return base[i] + (F32(1.0) if v >= thr[i] else F32(0.0))
+    v = F32(1.0) if v > F32(1.0) else v
+    v = F32(0.0) if v < F32(0.0) else v
+    return step_code(v, tab, b0, sh, n1, bottom)
 
 
 @njit(**KERNEL)
-def luma8_kernel(color, base, thr, b0, shift, out):
-    """fgcli.ops.fsr3.luma8 (_luma8_at): out (H, W) float32."""
+def luma8_kernel(color, tab, b0, sh, bottom, out):
+    """fgcli.ops.fsr3.luma8 (_luma8_of of the luminance of the sanitised colour): out
+    (H, W) float32. tab, b0, sh, bottom: packed_steps(luma8_table) (int32)."""
     h, w = out.shape
-    n1 = base.shape[0] - 1
+    n1 = np.int32(tab.shape[0] - 1)
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
-            out[y, x] = _luma8_at(color, y, x, base, thr, b0, shift, n1)
+            out[y, x] = F32(_luma8_of(_lum(color, y, x), tab, b0, sh, n1, bottom))
 
 
 @njit(**KERNEL)
-def luma8_u8_kernel(color, base, thr, b0, shift, out):
-    """fgcli.ops.fsr3.luma8_u8 (_luma8_at, whole numbers 0..255): out (H, W) uint8."""
+def luma8_u8_plane_kernel(lum, tab, b0, sh, bottom, out):
+    """fgcli.ops.fsr3.luma8_u8_of: the bytes of a luminance plane lum (H, W) float32 ->
+    out (H, W) uint8."""
     h, w = out.shape
-    n1 = base.shape[0] - 1
+    n1 = np.int32(tab.shape[0] - 1)
     for py in prange(h):
         y = np.int64(py)
         for x in range(w):
-            out[y, x] = np.uint8(_luma8_at(color, y, x, base, thr, b0, shift, n1))
+            out[y, x] = np.uint8(_luma8_of(lum[y, x], tab, b0, sh, n1, bottom))
+
+
+@njit(**KERNEL)
+def luma8_u8_kernel(color, tab, b0, sh, bottom, out):
+    """fgcli.ops.fsr3.luma8_u8 (luma8_kernel's codes as bytes): out (H, W) uint8."""
+    h, w = out.shape
+    n1 = np.int32(tab.shape[0] - 1)
+    for py in prange(h):
+        y = np.int64(py)
+        for x in range(w):
+            out[y, x] = np.uint8(_luma8_of(_lum(color, y, x), tab, b0, sh, n1, bottom))

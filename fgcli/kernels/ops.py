@@ -732,6 +732,7 @@ _TASKS = (
     ("fsr3", lambda i: avg_pool2(i["c"])),
     ("fsr3", lambda i: luma8(i["c"])),
     ("fsr3", lambda i: luma8_u8(i["c"])),
+    ("fsr3", lambda i: luma8_u8_of(field_luminance(i["c"]))),
     # (the per-level search and median: sub-pixel steps, other block sizes; the default
     # block flow is one chain kernel)
     ("fsr3", lambda i: block_flow(luma8(i["c"]), luma8(i["c"]), 7, 8, 8, True, True)),
@@ -825,6 +826,7 @@ def _warm_kernels(families=None) -> tuple:
                     pyramid.hole_index_kernel, pyramid.pool_chain_kernel,
                     pyramid.fill_levels_kernel,
                     flow.luma8_kernel, flow.luma8_u8_kernel,
+                    flow.luma8_u8_plane_kernel,
                     field.entries_prio_kernel, field.agreement_block_kernel,
                     field.field_scatter_block_kernel, field.field_scatter_prio_kernel,
                     field.field_walk_prio_kernel,
@@ -1010,6 +1012,28 @@ def _block_flow_u8(lum0, lum1, levels, median):
     return torch.from_numpy(fbuf[:int(boffs[1])].reshape(2, int(bh[0]), int(bw[0])))
 
 
+@functools.lru_cache(maxsize=None)
+def packed_steps(table):
+    """A step table (fgcli.ops.fsr3.step_table: luma8_table, depth_priority_table) packed
+    for fgcli.kernels._common.step_code, one int32 per bucket: base[i] << (shift + 1) |
+    the low shift bits of thr[i] (1 << shift: no step in the bucket). Returns (tab, b0,
+    shift, bottom = base[0]), the scalars int32."""
+    from fgcli.ops import fsr3 as FS
+
+    base, thr, b0 = table()
+    sh = {FS.luma8_table: FS.LUMA8_SHIFT, FS.depth_priority_table: FS.DEPTH_SHIFT}[table]
+    n = base.shape[0]
+    tb = thr.view(np.int32).astype(np.int64)
+    has = ~np.isnan(thr)
+    # each step inside its own bucket; none in the last (values above it read it), and
+    # the packed fields fit an int32
+    assert np.array_equal(tb[has] >> sh, np.arange(n)[has] + b0) and not has[-1]
+    assert base.max() < 2 ** (30 - sh) and np.array_equal(base, np.floor(base))
+    low = np.where(has, tb & ((1 << sh) - 1), 1 << sh)
+    tab = ((base.astype(np.int64) << (sh + 1)) | low).astype(np.int32)
+    return tab, np.int32(b0), np.int32(sh), np.int32(base[0])
+
+
 def luma8(color):
     """fgcli.ops.fsr3.luma8: the luminance, its clip and the table lookup in one kernel
     (the reference's table)."""
@@ -1021,8 +1045,7 @@ def luma8(color):
 
     h, w = color.shape[-2:]
     out = _empty(1, h, w)
-    base, thr, b0 = FS.luma8_table()
-    luma8_kernel(_a(color), base, thr, np.int64(b0), np.int64(FS.LUMA8_SHIFT), out.numpy()[0])
+    luma8_kernel(_a(color), *packed_steps(FS.luma8_table), out.numpy()[0])
     return out
 
 
@@ -1036,9 +1059,21 @@ def luma8_u8(color):
 
     h, w = color.shape[-2:]
     out = _empty(1, h, w, dtype=torch.uint8)
-    base, thr, b0 = FS.luma8_table()
-    luma8_u8_kernel(_a(color), base, thr, np.int64(b0), np.int64(FS.LUMA8_SHIFT),
-                    out.numpy()[0])
+    luma8_u8_kernel(_a(color), *packed_steps(FS.luma8_table), out.numpy()[0])
+    return out
+
+
+def luma8_u8_of(lum):
+    """fgcli.ops.fsr3.luma8_u8_of by one kernel pass over the plane."""
+    from fgcli.ops import fsr3 as FS
+
+    if not (_f32cpu(lum) and lum.dim() == 3 and lum.shape[0] == 1):
+        return FS.luma8_u8_of(lum)
+    from fgcli.kernels.flow import luma8_u8_plane_kernel
+
+    h, w = lum.shape[-2:]
+    out = _empty(1, h, w, dtype=torch.uint8)
+    luma8_u8_plane_kernel(_a(lum)[0], *packed_steps(FS.luma8_table), out.numpy()[0])
     return out
 
 
@@ -1053,9 +1088,7 @@ def depth_priority(depth):
 
     h, w = depth.shape[-2:]
     hi = _empty(1, h, w, dtype=torch.int64)
-    base, thr, b0 = FS.depth_priority_table()
-    depth_rank_kernel(_a(depth)[0], base, thr, np.int64(b0), np.int64(FS.DEPTH_SHIFT),
-                      hi.numpy()[0])
+    depth_rank_kernel(_a(depth)[0], *packed_steps(FS.depth_priority_table), hi.numpy()[0])
     return hi
 
 
@@ -1172,13 +1205,12 @@ def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, lu
     a1 = F32(1.0 - a)
     prio = np.empty((h, w), dtype=np.uint16)
     dist = np.empty((h, w), dtype=np.float32) if walk_on else l0  # (unwritten without)
-    base, tb, b0 = FS.depth_priority_table()
     if depth is None:
         hv, dv = _a(hi).reshape(h, w), np.empty((0, 0), dtype=np.float32)
     else:
         hv, dv = np.empty((0, 0), dtype=np.int64), _a(depth)[0]
     entries_prio_kernel(l0, _a(color1), va, hv, a1, gxn, gyn, kx, ky, prio, bool(walk_on), dist,
-                        dv, base, tb, np.int64(b0), np.int64(FS.DEPTH_SHIFT))
+                        dv, *packed_steps(FS.depth_priority_table))
     padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
     buf = [padded[0].reshape(-1), padded[1].reshape(-1)]
     field_scatter_prio_kernel(va, prio, a1, F32(thr), buf[0], buf[1])

@@ -431,7 +431,11 @@ def luma8(color: torch.Tensor) -> torch.Tensor:
     vectorised and scalar pow differ there too), float32 (1, H, W) with integer values
     0..255; NaN reads as 0, +inf as 1."""
     color = check_tensor(color, "color", 3, allow_batch=False)
-    y = luminance(sanitize_values(color))
+    return _luma8_code(luminance(sanitize_values(color)))
+
+
+def _luma8_code(y: torch.Tensor) -> torch.Tensor:
+    """luma8's code of a luminance plane y (float32; NaN -> 0, +inf -> 1, clipped)."""
     y = torch.nan_to_num(y, nan=0.0, posinf=1.0, neginf=0.0).clamp_(0.0, 1.0)
     base, thr, b0 = _table_on(luma8_table, y.device)
     i = ((y.view(torch.int32) >> LUMA8_SHIFT) - b0).clamp_(0, base.numel() - 1).long()
@@ -443,6 +447,17 @@ def luma8_u8(color: torch.Tensor) -> torch.Tensor:
     takes it as it is (the numba backend's search reads bytes: no float plane written and
     converted back)."""
     return luma8(color).to(torch.uint8)
+
+
+def luma8_u8_of(lum: torch.Tensor) -> torch.Tensor:
+    """luma8_u8 of a colour from its field_luminance plane (1, H, W): the same bytes (that
+    plane is luma8's Y with NaN -> 0 and +-inf -> +-BIG, which the clip to [0, 1] reads as
+    luma8 reads NaN and +-inf), from one plane instead of three channels. The
+    optical-flow stage takes frame 0's this way from the game field's plane."""
+    lum = check_tensor(lum, "lum", 1, allow_batch=False)
+    if lum.dtype != torch.float32:
+        raise ValueError(f"lum: expected float32, got {lum.dtype}")
+    return _luma8_code(lum).to(torch.uint8)
 
 
 def _vector_median3(f: torch.Tensor) -> torch.Tensor:

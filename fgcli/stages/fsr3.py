@@ -160,8 +160,15 @@ class FSR3OpticalFlow(Stage):
         else:
             # (the block search reads bytes: luma8's whole numbers 0..255 as uint8)
             luma8 = op("luma8" if self.flow == "dis" else "luma8_u8", ctx)
-            l0 = memo["luma"][1] if memo is not None and memo.get("luma", (None,))[0] == \
-                (n0, key[2], self.flow) else luma8(c0)  # frame 0 was the last pair's frame 1
+            lp = ctx.get("field_luma0")
+            if memo is not None and memo.get("luma", (None,))[0] == (n0, key[2], self.flow):
+                l0 = memo["luma"][1]  # frame 0 was the last pair's frame 1
+            elif lp is not None and self.flow != "dis":
+                # the same bytes from the game field's luminance plane of frame 0 (one
+                # plane read instead of three channels)
+                l0 = op("luma8_u8_of", ctx)(lp)
+            else:
+                l0 = luma8(c0)
             l1 = luma8(c1)
             f = dis_flow(l0, l1) if self.flow == "dis" else \
                 op("block_flow", ctx)(l0, l1, self.levels, 8, self.search, self.median,
