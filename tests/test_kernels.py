@@ -1135,7 +1135,9 @@ def test_fsr3_masks_and_interpolation(h, w):
         d0[0, :1] = NAN
         d0[0, 1:2, :3] = -1.0
         dt = d.clone()
-        dt[0, ::2] = INF
+        dt[0, ::2] = INF  # rows all +inf (sky), rows with a few (one by one) and with
+        dt[0, 1::4, ::7] = INF  # many (the row's lookups), mixed with depths
+        dt[0, 3::4, ::3] = INF
         dt[0, -1, :2] = NAN
         v2 = v.clone()
         v2[0, -1:] = NAN
@@ -1143,6 +1145,10 @@ def test_fsr3_masks_and_interpolation(h, w):
             k = K.interpolated_depth(dt, v2, a, *dd)
             r = fsr3.interpolated_depth(dt, v2, a, *dd)
             assert torch.equal(k.view(torch.int32), r.view(torch.int32)), "depth"
+        # (a depth of another size: the reference's error, not a kernel reading past it)
+        for f in (K.interpolated_depth, fsr3.interpolated_depth) if w > 1 else ():
+            with pytest.raises(ValueError, match="size"):
+                f(dt, v2, a, d0, d[..., :1])
     # display space runs the reference
     one = torch.ones(1, h, w)
     same_result("display", K.interpolate_fsr3(c0, c1, v, one, one, 0.5, of, "display"),

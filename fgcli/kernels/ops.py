@@ -492,8 +492,10 @@ def interpolated_depth(depth_t, vec, alpha=0.5, depth0=None, depth1=None):
     from fgcli.ops import fsr3 as FS
 
     if depth0 is None or depth1 is None or not _cpu(depth_t, vec, depth0, depth1) or \
-            any(t.shape[0] != 1 or t.dtype != torch.float32 for t in (depth_t, depth0, depth1)) \
-            or depth_t[0].numel() >= 2 ** 31:  # (32-bit indices)
+            any(t.shape != depth_t.shape or t.dtype != torch.float32
+                for t in (depth_t, depth0, depth1)) or depth_t.shape[0] != 1 \
+            or depth_t.shape[1:] != vec.shape[1:] or vec.dtype != torch.float32 \
+            or depth_t[0].numel() >= 2 ** 31:  # (32-bit indices; kernel reads (H, W) depths)
         return FS.interpolated_depth(depth_t, vec, alpha, depth0, depth1)
     a = check_alpha(alpha)
     from fgcli.kernels.fsr3 import interp_depth_kernel
