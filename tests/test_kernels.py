@@ -1474,6 +1474,40 @@ def test_inpaint_color_in_place(h, w):
                     assert torch.equal(x.view(torch.int32), v.view(torch.int32))
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1), (2, 3)])
+def test_inpaint_takes_the_interpolations_level1(h, w):
+    """The interpolation pass makes the colour inpainting's level 1 of its output as it
+    writes the rows (interp_window_kernel, with the optical flow on the window-fetch
+    CPUs), and the in-place inpainting of that output takes it: the reference's
+    interpolation and inpainting bit for bit (odd heights: a last single row; HDR, NaN
+    and inf colour, holes from off-screen masks). Changed in place between (colour or
+    holes), the inpainting pools the changed frame itself: the reference's result of it."""
+    from fgcli.ops import fsr3
+
+    c0, c1, v, d = _fsr3_inputs(h, w, h * 3 + w)
+    g = torch.Generator().manual_seed(h + 2 * w)
+    of = torch.randn(2, h, w, generator=g) * 3.0
+    mp = (torch.rand(1, h, w, generator=g) > 0.3).float()
+    mc = (torch.rand(1, h, w, generator=g) > 0.3).float()
+    mc[0, : h // 2, : w // 2] = 0.0
+    mp[0, : h // 2, : w // 2] = 0.0  # a block of holes
+    for change in (None, "colour", "holes", "inference"):
+        with torch.inference_mode(change == "inference"):  # (as the runner: no versions)
+            kc, kh, _ = K.interpolate_fsr3(c0, c1, v, mp, mc, 0.5, of)
+            rc, rh, _ = fsr3.interpolate_fsr3(c0, c1, v, mp, mc, 0.5, of)
+        if change == "colour":
+            kc[:, -1:] += 1.0
+            rc[:, -1:] += 1.0
+        elif change == "holes":
+            kh[0, -1:, -1:] = True
+            rh[0, -1:, -1:] = True
+        with torch.inference_mode(change == "inference"):
+            got = K.inpaint_color(kc, kh, in_place=True)
+            want = fsr3.inpaint_color(rc, rh)
+        assert torch.equal(got.view(torch.int32), want.view(torch.int32)), change
+        assert got.data_ptr() == kc.data_ptr() or h * w == 1  # (in place; 1 x 1: reference)
+
+
 # ----------------------------------------------------------------------------- dispatch, CLI
 
 def test_dispatch_and_resolve():

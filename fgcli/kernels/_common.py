@@ -232,3 +232,28 @@ def step_code(v, tab, b0, sh, n1, bottom):
     f = (np.int32(1) << (sh + np.int32(1))) - np.int32(1)
     c = (e >> (sh + np.int32(1))) + np.int32((bits & m) >= (e & f))
     return bottom if below else c
+
+
+@njit(**INLINE)
+def dealt(i, n):
+    """The chunk (or row) a parallel loop's iteration i of n works on, dealt out so that
+    each thread's share is spread over the frame: numba gives each thread one contiguous
+    run of a prange's iterations (OpenMP's static schedule), so with chunk i = i the top of
+    the frame went to one thread and the bottom to the other, and the work of a frame
+    whose top differs from its bottom (sky, holes, disocclusions) was split unevenly
+    (interp_depth_kernel: one thread busy 1.7x the other). For n a power of two (64
+    chunks) the bit reversal of i (any power-of-two number of threads gets every T-th
+    chunk), else the even ones first, then the odd ones (two threads alternate). A
+    permutation of 0 .. n - 1 either way; int64."""
+    i = np.int64(i)
+    n = np.int64(n)
+    if n & (n - 1) == 0:
+        r = np.int64(0)
+        k = n >> 1
+        while k > 0:
+            r = (r << 1) | (i & 1)
+            i >>= 1
+            k >>= 1
+        return r
+    m = (n + 1) // 2
+    return 2 * i if i < m else 2 * (i - m) + 1

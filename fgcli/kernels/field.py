@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, f2i64, sdepth_b, smv_b,
-                                   step_code, sval_b)
+from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, dealt, f2i64, sdepth_b,
+                                   smv_b, step_code, sval_b)
 from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x1, fmin16x2, ld32, mad32,
                                    umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
@@ -472,9 +472,10 @@ def agreement_block_kernel(l0, c1, vec, sh, gxn, gyn, kx, ky, lo):
     planes, 33 MB at 1080p) written here and read back there."""
     h, w = lo.shape
     nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = ch * h // nch
+        yb = (ch + 1) * h // nch
         V0 = np.empty(w, dtype=np.float32)
         V1 = np.empty(w, dtype=np.float32)
         XA = np.empty(w, dtype=np.int32)
@@ -582,9 +583,10 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
     with the CLI's allocator settings)."""
     h, w = prio.shape
     nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = ch * h // nch
+        yb = (ch + 1) * h // nch
         XA = np.empty(w, dtype=np.int32)
         XB = np.empty(w, dtype=np.int32)
         YA = np.empty(w, dtype=np.int32)

@@ -20,9 +20,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, ROWS, clamp_b, sdepth_b, sflow_b,
-                                   smv_b, sval_b)
+from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, ROWS, clamp_b, dealt, sdepth_b,
+                                   sflow_b, smv_b, sval_b)
 from fgcli.kernels.blend import _lerp_b
+from fgcli.kernels.pyramid import _pool_rows
 from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x3, ld_pair, mad32, nearest16,
                                    taps16)
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, _nearest_depth32, bil_taps
@@ -189,9 +190,10 @@ def disocclusion_kernel(depth_t, depth_prev, depth1, vec, a, b, thr, threshold, 
     flat_ok(h, w, 1)."""
     h, w = depth_t.shape
     nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = ch * h // nch
+        yb = (ch + 1) * h // nch
         XA = np.empty(w, dtype=np.int32)
         XB = np.empty(w, dtype=np.int32)
         YA = np.empty(w, dtype=np.int32)
@@ -326,9 +328,10 @@ def interp_game_kernel(c0, c1, vec, mask_prev, mask_cur, has_of, a, na, nb, gxn,
     toward frame 1), nb = 1 - alpha, all float32."""
     h, w = mask_prev.shape
     nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = ch * h // nch
+        yb = (ch + 1) * h // nch
         # (row buffers allocated here one by one: unpacked from a helper's tuple they would
         # count as aliases and no loop of the kernel would be vectorised)
         P = np.empty((3, w), dtype=np.float32)
@@ -421,8 +424,9 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
 
 @njit(**ROWS)
 def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx,
-                        ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T, G, S):
-    """interp_window_kernel's rows ya..yb (one chunk of its parallel loop)."""
+                        ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T, G, S,
+                        pool, lev1, nh, PR):
+    """interp_window_kernel's rows ya..yb (one chunk of its parallel loop; ya even)."""
     h, w = mask_prev.shape
     hw = F32(w * 0.5)
     hh = F32(h * 0.5)
@@ -507,21 +511,46 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
             for x in range(w):
                 cof = _lerp_b(P[k, x], C[k, x], T[x])
                 out[k, y, x] = sval_b(_lerp_b(cof, O[k, x], bias[y, x]))
+        if pool and (y & 1 == 1 or y == h - 1):  # a pair of rows done: its level-1 texels
+            q = y >> 1
+            y0 = 2 * q
+            nr = y - y0 + 1
+            n = 0
+            for r in range(nr):
+                for x in range(w):
+                    n += np.int64(holes[y0 + r, x])
+            nh[q] = n
+            for k in range(4):
+                for r in range(nr):
+                    if k < 3:
+                        for x in range(w):
+                            PR[r, x] = out[k, y0 + r, x] * (F32(0.0) if holes[y0 + r, x]
+                                                             else F32(1.0))
+                    else:
+                        for x in range(w):
+                            PR[r, x] = F32(0.0) if holes[y0 + r, x] else F32(1.0)
+                _pool_rows(PR, nr, w, lev1, k, q)
 
 
 @njit(**KERNEL)
 def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx, ky,
-                         out, holes, bias):
+                         out, holes, bias, pool, lev1, nh):
     """interp_game_kernel and interp_flow_kernel (with the optical-flow path) in one pass,
     row by row, every colour sample through the 16-lane window fetches (AVX-512 or AVX2:
     HAVE_WINDOW16): the lerp weight, the mask flags, the game samples' similarity and their
     lerp stay in row buffers instead of six frame-sized planes written and read back. The
-    same operations, bit for bit."""
+    same operations, bit for bit. ``pool``: also the colour inpainting's level 1 of each
+    pair of rows as they are done (lev1 (4, h2, w2), nh (h2,): what inpaint_prep_kernel
+    makes of the output and its holes, the same sums; chunks of whole pairs), while the
+    rows are in cache instead of read again by the inpainting (else lev1 and nh are not
+    written)."""
     h, w = mask_prev.shape
-    nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    h2 = (h + 1) // 2
+    nch = min(h2, 64)
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = 2 * (ch * h2 // nch)
+        yb = min(h, 2 * ((ch + 1) * h2 // nch))
         # (row buffers allocated here one by one: see interp_game_kernel)
         XA = np.empty(w, dtype=np.int32)
         XB = np.empty(w, dtype=np.int32)
@@ -537,9 +566,10 @@ def interp_window_kernel(c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gx
         T = np.empty(w, dtype=np.float32)
         G = np.empty(w, dtype=np.float32)
         S = np.empty(w, dtype=np.float32)
+        PR = np.empty((2, w), dtype=np.float32)  # (a pair of rows' products, pooled)
         _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn,
                             kx, ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T,
-                            G, S)
+                            G, S, pool, lev1, nh, PR)
 
 
 @njit(**INLINE)
@@ -623,9 +653,10 @@ def interp_depth_kernel(depth_t, depth0, depth1, vec, a, na, out):
     C-contiguous depths of fewer than 2**31 pixels."""
     h, w = depth_t.shape
     nch = min(h, 64)
-    for ch in prange(nch):
-        ya = np.int64(ch) * h // nch
-        yb = (np.int64(ch) + 1) * h // nch
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        ya = ch * h // nch
+        yb = (ch + 1) * h // nch
         JX = np.empty(w, dtype=np.int32)
         JY = np.empty(w, dtype=np.int32)
         S0 = np.empty(w, dtype=np.float32)

@@ -41,10 +41,18 @@ def _empty(*shape, dtype=torch.float32):
     return torch.empty(shape, dtype=dtype)
 
 
+_LEVEL1 = "_fgen_inpaint_level1"  # (_keep_level1)
+
+
 def _writable(in_place, *ts) -> bool:
     """Whether an op asked to work in place may write into ts: every one scratch
-    (fgcli.ops._util.mark_scratch) and C-contiguous (the kernels' layout)."""
-    return bool(in_place) and is_scratch(*ts) and all(t.is_contiguous() for t in ts)
+    (fgcli.ops._util.mark_scratch) and C-contiguous (the kernels' layout). A level 1 kept
+    with one (_keep_level1) goes: it will not be the tensor's any more."""
+    ok = bool(in_place) and is_scratch(*ts) and all(t.is_contiguous() for t in ts)
+    if ok:
+        for t in ts:
+            t.__dict__.pop(_LEVEL1, None)
+    return ok
 
 
 def _own_copy(t: torch.Tensor) -> torch.Tensor:
@@ -469,9 +477,13 @@ def interpolate_fsr3(color0, color1, vec, mask_prev, mask_cur, alpha=0.5, of_vec
     if has_of and WINDOW16:  # both paths in one pass (the window fetches: AVX-512 / AVX2)
         from fgcli.kernels.fsr3 import interp_window_kernel
 
+        *chain, lev1 = _chain(4, h, w)
+        nh = np.empty((h + 1) // 2, dtype=np.int64)
         interp_window_kernel(_a(color0), _a(color1), _a(vec), _a(of_vec), _a(mask_prev)[0],
                              _a(mask_cur)[0], F32(a), F32(-(1.0 - a)), F32(1.0 - a), gxn, gyn,
-                             kx, ky, out.numpy(), holes.numpy()[0], bias.numpy()[0])
+                             kx, ky, out.numpy(), holes.numpy()[0], bias.numpy()[0], True,
+                             lev1, nh)
+        _keep_level1(out, holes, chain, nh)
         return mark_scratch(out), holes, bias
     T, G = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     S = np.empty((h, w), dtype=np.float32) if has_of else _DUMMY2
@@ -560,7 +572,10 @@ def _inpaint(values, weight, holes, mode, decay, eps, in_place=False, want_fille
     from fgcli.kernels.pyramid import inpaint_prep_kernel
 
     c, h, w = values.shape
+    kept = _level1_of(values, holes) if holes is not None else None
     inp = holes is not None and _writable(in_place, values) and holes.is_contiguous()
+    if kept is not None and inp and weight is None:  # (interpolate_fsr3's: level 1 made)
+        return _inpaint_levels(values, holes, kept[0], kept[1], mode, decay, eps, want_filled)
     out = values if inp else _empty(c, h, w)
     hout = holes if inp else _empty(1, h, w, dtype=torch.bool)
     *chain, lev1 = _chain(c + 1, h, w)
@@ -570,6 +585,36 @@ def _inpaint(values, weight, holes, mode, decay, eps, in_place=False, want_fille
     inpaint_prep_kernel(va, va[0] if weight is None else _a(weight)[0], weight is None, ha,
                         holes is not None, _a(out), _u8(hout)[0], lev1, nh, not inp)
     return _inpaint_levels(out, hout, chain, nh, mode, decay, eps, want_filled)
+
+
+def _versions(*ts):
+    """The tensors' version counters (bumped by torch's in-place ops), or None in
+    inference mode (which keeps none)."""
+    try:
+        return tuple(t._version for t in ts)
+    except RuntimeError:
+        return None
+
+
+def _keep_level1(color, holes, chain, nh):
+    """Keep with color the inpainting's level 1 of it and its holes (inpaint_color's with
+    unit weight: interp_window_kernel makes it as it writes the rows), until the
+    inpainting takes it (_level1_of). It goes when a kernel op is let write color in place
+    (_writable), when torch changes either tensor in place (their version counters, where
+    torch keeps them: not in inference mode), and with other holes."""
+    color.__dict__[_LEVEL1] = (holes, _versions(color, holes), chain, nh)
+
+
+def _level1_of(color, holes):
+    """(chain, nh) that _keep_level1 kept with color for these holes, if neither tensor
+    changed since (else None); taken off color either way."""
+    kept = color.__dict__.pop(_LEVEL1, None) if isinstance(color, torch.Tensor) else None
+    if kept is None:
+        return None
+    h0, vs, chain, nh = kept
+    if h0 is not holes or _versions(color, holes) != vs:
+        return None
+    return chain, nh
 
 
 def _chain(c1, h, w):

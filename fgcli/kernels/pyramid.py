@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INF, INLINE, KERNEL, sval_b
+from fgcli.kernels._common import F32, INF, INLINE, KERNEL, dealt, sval_b
 from fgcli.kernels._intrin import fma
 from fgcli.kernels.warp import _grid_coords
 
@@ -231,7 +231,7 @@ def fill_levels_kernel(chain, hs, ws, offs, idx, ms, nb, eps, out, filled):
     want = filled.shape[0] > 0
     nch = (n + 255) // 256  # (small chunks: holes deep in a hole read more levels)
     for pc in prange(nch):
-        j0 = np.int64(pc) * 256
+        j0 = dealt(pc, nch) * 256  # (each thread's holes spread over the frame)
         acc = np.empty(c + 1, dtype=np.float32)
         smp = np.empty(c + 1, dtype=np.float32)
         res = np.empty(c, dtype=np.float32)
