@@ -1059,6 +1059,17 @@ def test_fsr3_lengths_take_torchs_sqrt():
     for a in (0.0, 0.5):
         same("field (torch's sqrt)", _kfield(c0, c1, v, hi, a, True, 64),
              fsr3.vector_field(c0, c1, v, hi, a, True, 64))
+    # the walk's threshold (the roots are taken of the walking pixels only): (1 - alpha)
+    # |v| at 1 and a few ulps either side, rows of short vectors only, none walking at all
+    v2 = v.clone()
+    one = torch.tensor([1.0]).view(torch.int32)
+    edge = (one + torch.arange(-3, 4, dtype=torch.int32)).view(torch.float32) * 2.0
+    v2[0, :, : edge.numel()] = edge
+    v2[1, :, : edge.numel()] = 0.0
+    v2[:, h // 2:] *= 0.01
+    for vv in (v2, v * 0.01):
+        same("field (walk threshold)", _kfield(c0, c1, vv, hi, 0.5, True, 64),
+             fsr3.vector_field(c0, c1, vv, hi, 0.5, True, 64))
 
 
 @pytest.mark.parametrize("h,w", [(37, 53), (5, 9), (1, 1)])

@@ -537,7 +537,7 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
 
 @njit(**ROWS)
 def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB, YA,
-                       YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom):
+                       YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt):
     """entries_prio_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = prio.shape
     fromd = depth.shape[0] > 0
@@ -554,15 +554,19 @@ def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec,
                 prio[y, x] = np.uint16(_prio(hi[y, x], _agreement(s0[x], _lum(c1, y, x),
                                                                   ins[x])))
         if sec:  # the squared lengths of the secondary walk (torch takes the sqrt)
+            n = 0
             for x in range(w):
                 t0 = smv_b(vec[0, y, x]) * a1
                 t1 = smv_b(vec[1, y, x]) * a1
-                dist[y, x] = t0 * t0 + t1 * t1
+                d2 = t0 * t0 + t1 * t1
+                dist[y, x] = d2
+                n += np.int64(d2 >= tw)
+            cnt[y] = n
 
 
 @njit(**KERNEL)
 def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, depth, tab, b0,
-                        sh, bottom):
+                        sh, bottom, tw, cnt):
     """fgcli.ops.fsr3.field_entries' per-pixel part (l0: luma_plane_kernel's plane of
     frame 0, so a tap is one gather, not three; C-contiguous, flat_ok(h, w, 1): the taps
     are pair loads): frame 0's luminance read bilinearly at p + v (grid_sample's
@@ -571,9 +575,11 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
     the 16-bit priority (primary flag | hi clamped to 10 bits | agreement). hi (H, W)
     int64, or with depth (H, W) (not empty: hi is not read) depth_rank_kernel's values
     made here (tab, b0, sh, bottom: packed_steps(depth_priority_table); the game field's,
-    without a 16 MB int64 plane written and read back per 1080p frame). With ``sec``: dist (H, W) =
-    the squared length of (1 - alpha) v (the reference's products and sum); the caller
-    takes torch.sqrt of it (MKL's, not IEEE's: fgcli.kernels.geom).
+    without a 16 MB int64 plane written and read back per 1080p frame). With ``sec``:
+    dist (H, W) = the squared length of (1 - alpha) v (the reference's products and sum),
+    and cnt (H,) the number in each row at or above tw (float32: those whose torch.sqrt
+    reaches 1, the pixels that walk); the caller takes torch.sqrt of those (MKL's, not
+    IEEE's: fgcli.kernels.geom; walk_sources_kernel).
 
     The positions and packed entries are not written here: field_scatter_prio_kernel and
     field_walk_prio_kernel make them from the vectors and prio as they go (2 bytes per
@@ -596,7 +602,26 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
         _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB,
-                           YA, YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom)
+                           YA, YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt)
+
+
+@njit(**KERNEL)
+def walk_sources_kernel(dist, tw, start, idx, vals):
+    """The squared lengths at or above tw (entries_prio_kernel's walking pixels) listed in
+    row order: row y's from start[y] (the prefix sums of its cnt), flat index into idx
+    (int64) and value into vals (float32), for torch.sqrt of those alone (a few percent of
+    the frame) instead of the whole plane."""
+    h, w = dist.shape
+    for py in prange(h):
+        y = np.int64(py)
+        k = start[y]
+        if start[y + 1] == k:
+            continue
+        for x in range(w):
+            if dist[y, x] >= tw:
+                idx[k] = y * w + x
+                vals[k] = dist[y, x]
+                k += 1
 
 
 @njit(**KERNEL)

@@ -876,7 +876,7 @@ def _warm_kernels(families=None) -> tuple:
                     flow.luma8_u8_plane_kernel,
                     field.entries_prio_kernel, field.agreement_block_kernel,
                     field.field_scatter_block_kernel, field.field_scatter_prio_kernel,
-                    field.field_walk_prio_kernel,
+                    field.field_walk_prio_kernel, field.walk_sources_kernel,
                     field.luma_plane_kernel,
                     field.depth_rank_kernel,
                     fsr3.interp_depth_kernel, fsr3.scale_mv_kernel)
@@ -1252,25 +1252,57 @@ def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, lu
     a1 = F32(1.0 - a)
     prio = np.empty((h, w), dtype=np.uint16)
     dist = np.empty((h, w), dtype=np.float32) if walk_on else l0  # (unwritten without)
+    cnt = np.empty(h, dtype=np.int64)
+    # the walking pixels: torch.sqrt of the squared length >= 1 (tw: the least such
+    # float32, checked against torch.sqrt itself; <= 1, so the others stay below 1)
+    tw = _sqrt_at_least(1.0)
+    sparse = tw is not None and tw <= 1.0
     if depth is None:
         hv, dv = _a(hi).reshape(h, w), np.empty((0, 0), dtype=np.float32)
     else:
         hv, dv = np.empty((0, 0), dtype=np.int64), _a(depth)[0]
     entries_prio_kernel(l0, _a(color1), va, hv, a1, gxn, gyn, kx, ky, prio, bool(walk_on), dist,
-                        dv, *packed_steps(FS.depth_priority_table))
+                        dv, *packed_steps(FS.depth_priority_table),
+                        F32(tw if sparse else 0.0), cnt)
     padded = np.empty((2, h + 2, w + 2), dtype=np.uint32)  # (zeroed by the kernel)
     buf = [padded[0].reshape(-1), padded[1].reshape(-1)]
     field_scatter_prio_kernel(va, prio, a1, F32(thr), buf[0], buf[1])
     if walk_on and h * w:
-        dt = torch.from_numpy(dist)
-        torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
-        steps = int(min(max_secondary, np.floor(float(dt.max()))))
+        steps = _walk_lengths(dist, cnt, tw, max_secondary) if sparse else None
+        if steps is None:  # (every pixel's root, as the reference takes them)
+            dt = torch.from_numpy(dist)
+            torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
+            steps = int(min(max_secondary, np.floor(float(dt.max()))))
         if steps >= 1:
             n = (h + 2) * (w + 2)
             sec = [np.empty(n, dtype=np.uint32) for _ in range(2)]  # (zeroed by the kernel)
             field_walk_prio_kernel(va, prio, dist, a1, steps, buf[0], buf[1], *sec)
             field_merge_kernel(buf[0], buf[1], *sec)
     return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
+
+
+def _walk_lengths(dist, cnt, tw, max_secondary):
+    """The secondary walk's lengths in place in dist (H, W), the squared lengths: torch.sqrt
+    of those at or above tw only (cnt: entries_prio_kernel's per-row counts; the square
+    root of a value does not depend on its position or neighbours, which
+    test_torch_math_position_free checks), the others (below 1: they do not walk) left as
+    they are. Returns the walk's steps (the reference's floor of the largest length, at
+    most max_secondary; 0 when none walks). ~0.8 ms less per 1080p frame than the whole
+    plane's roots and maximum, with a few percent of the pixels walking."""
+    from fgcli.kernels.field import walk_sources_kernel
+
+    start = np.zeros(cnt.size + 1, dtype=np.int64)
+    np.cumsum(cnt, out=start[1:])
+    n = int(start[-1])
+    if n == 0:
+        return 0
+    idx = np.empty(n, dtype=np.int64)
+    vals = np.empty(n, dtype=np.float32)
+    walk_sources_kernel(dist, F32(tw), start, idx, vals)
+    lv = torch.from_numpy(vals)
+    torch.sqrt(lv, out=lv)  # (the reference's sqrt, MKL's)
+    dist.reshape(-1)[idx] = vals
+    return int(min(max_secondary, np.floor(float(vals.max()))))
 
 
 def game_vector_field(color0, color1, vec, depth, alpha=0.5, secondary=True,
