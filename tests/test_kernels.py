@@ -682,8 +682,8 @@ def test_window_fetch_intrinsics():
     """bilinear16x3, bilinear16x1 (each plane on its own), nearest16 and taps16 against a
     per-lane loop of the scalar helpers: random taps (gathered), taps within 32 columns of
     two and three rows (windows), the last column and row, NaN / +-inf / huge values
-    (sanitised only in the planes that have them), zero-flow lanes; the returned fetch
-    path covers all three. (AVX2 reads each half of 8 lanes from 16 columns: the spread
+    (sanitised only in the planes that have them), zero-flow lanes and blocks of them;
+    the returned fetch path covers all four. (AVX2 reads each half of 8 lanes from 16 columns: the spread
     varies so that both fetches see windows and gathers.)"""
     import numpy as np
     from numba import njit
@@ -703,7 +703,8 @@ def test_window_fetch_intrinsics():
             p = bilinear16x3(img, np.int32(h * w), np.int32(w), np.int32(h), XA, XB, YA, YB, WT,
                              Z, np.int32(16 * b), np.int32(cy * w), out, np.int32(out.shape[1]),
                              np.int32(0))
-            paths[2 * b] = p if t == p else -1  # (the same taps: the same path)
+            # (the same taps: the same path; 1, no fetch, where every lane's flow is zero)
+            paths[2 * b] = p if (t == p) | (p == 1) else -1
             paths[2 * b + 1] = nearest16(img, np.int32(w), np.int32(h), XA, YA,
                                          np.int32(16 * b), dout, np.int32(0))
         return paths
@@ -755,6 +756,8 @@ def test_window_fetch_intrinsics():
         WT[2, yb == ya] = 0.0
         WT[3, (xb == xa) | (yb == ya)] = 0.0
         Z = (rng.random(n) < 0.2).astype(np.int32)
+        if trial % 7 == 0:  # a block of 16 zero-flow lanes: the centres only (path 1)
+            Z[16:32] = 1
         cy = int(rng.integers(0, h))
         if w < n:  # the centre row read at lanes 0..n-1: a frame at least n wide
             continue
@@ -763,6 +766,8 @@ def test_window_fetch_intrinsics():
         T = np.full((4, n), 5.0, np.float32)
         pth = run(img, w, h, XA, XB, YA, YB, WT, Z, a, da, cy, T)
         seen.update(pth.tolist())
+        allz = [bool(Z[16 * b:16 * b + 16].all()) for b in range(n // 16)]
+        assert [p == 1 for p in pth[::2]] == allz, trial
         a1 = np.full((3, n + 5), 9.0, np.float32)
         pth1 = run1(img, w, h, XA, XB, YA, YB, WT, Z, a1, cy)
         assert np.array_equal(pth1.reshape(-1, 3), np.repeat(pth[::2, None], 3, 1)), trial
@@ -772,7 +777,7 @@ def test_window_fetch_intrinsics():
         assert np.array_equal(T.view(np.int32), taps.view(np.int32)), trial
         assert np.array_equal(a.view(np.int32), b.view(np.int32)), trial
         assert np.array_equal(da.view(np.int32), db.view(np.int32)), trial
-    assert seen == {0, 2, 3}, seen
+    assert seen == {0, 1, 2, 3}, seen
 
 
 def _fsr3_inputs(h, w, seed):
@@ -823,6 +828,12 @@ def test_fsr3_block_vector_field(h, w):
             f[0].view(-1)[1] = NAN
             f[1].view(-1)[2] = INF
             f[0].view(-1)[3] = -1e9
+        if nby >= 5:  # rows of zero vectors (+0 and -0; one with a subnormal)
+            f[:, 2] = 0.0
+            f[:, 3] = -0.0
+            f[0, 4] = 0.0
+            f[1, 4] = -0.0
+            f[1, 4, -1] = 1e-45
         if nbx >= 4:  # blocks sharing a vector: runs of 16 and more sources
             f[:, nby // 2:, :nbx // 2 + 2] = torch.tensor([2.3, -1.7])[:, None, None]
         hi = fsr3.magnitude_priority(f)
@@ -834,6 +845,10 @@ def test_fsr3_block_vector_field(h, w):
                                                            None, b), ref)
                 same(f"block field (reference) {b} {a} {sec}",
                      fsr3.vector_field(c0, c1, f, hi, a, sec, block=b), ref)
+        for thr in (0.0, -0.5, 1.0, 0.999):  # (the tap rule at its ends)
+            same(f"block field {b} thr={thr}", _kfield(c0, c1, f, hi, 0.5, False, 64, thr,
+                                                       None, b),
+                 fsr3.vector_field(c0, c1, *up, 0.5, False, tap_threshold=thr))
 
 
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
@@ -1121,7 +1136,8 @@ def test_torch_math_position_free():
 def test_fsr3_masks_and_interpolation(h, w):
     """FSR 3's disocclusion masks and interpolation pass: one kernel pass each, the
     reference's float32 operations one by one (hard cases: sky, NaN and zero depths; NaN,
-    inf and huge vectors; HDR, NaN and inf colour; masks off-screen; alpha at both ends)."""
+    inf and huge vectors; HDR, NaN and inf colour; masks off-screen; alpha at both ends;
+    rows and blocks of zero optical flow, which take the pixels without fetching)."""
     from fgcli.ops import fsr3
 
     c0, c1, v, d = _fsr3_inputs(h, w, h * 5 + w)
@@ -1136,10 +1152,18 @@ def test_fsr3_masks_and_interpolation(h, w):
     c1 = c1.clone()
     c1[2, :, :1] = NAN
     c1[:, :1, -1:] = 0.0
+    # static parts: rows of zero flow (+0 and -0), blocks of 16 in moving rows, a NaN and a
+    # subnormal (scaled to 0) in otherwise zero rows
+    of_static = of.clone()
+    of_static[:, 1::3] = 0.0
+    of_static[1, 1::6] = -0.0
+    of_static[:, 2::3, :min(w, 40)] = 0.0
+    of_static[0, 4::6, -1] = 1e-45
+    of_static[1, 7::9, 0] = NAN
     for a in (0.5, 0.3, 0.0, 1.0):
         mk = K.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4)
         same_result("masks", mk, fsr3.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4))
-        for o in (None, of, v * 0):
+        for o in (None, of, v * 0, of_static):
             same_result(f"interp a={a}", K.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o),
                         fsr3.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o))
         d0 = d.flip(-1).clone()

@@ -401,7 +401,17 @@ def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB,
     gyy = gyn[y]
     lo_y = F32(-0.5) - yf
     hi_y = F32(h - 0.5) - yf
-    if WINDOW16:  # the taps into row buffers (bil_taps), then 16 pixels per fetch
+    moving = I32(1)
+    if WINDOW16:  # a row of zero vectors (static parts of a frame): its own pixels
+        moving = I32(0)
+        for x in range(w):
+            moving |= I32((V0[x] != F32(0.0)) | (V1[x] != F32(0.0)))
+        if moving == 0:
+            for x in range(16 * nb):
+                s0[x] = sval_b(l0[y, x])  # (what the fetch gives along zero vectors)
+            for x in range(16 * nb):
+                ins[x] = F32(1.0)
+    if WINDOW16 and moving != 0:  # the taps into row buffers (bil_taps), 16 pixels per fetch
         for x in range(w):
             vx = smv_b(V0[x])
             vy = smv_b(V1[x])
@@ -517,17 +527,30 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
         k2 = np.empty(w, dtype=np.uint32)
         k3 = np.empty(w, dtype=np.uint32)
         brk = np.empty(w, dtype=np.int64)
+        # a source at its own texel (zero vector) writes that texel alone: weight 1 there,
+        # 0 at the other three taps (for 0 <= thr < 1, the reference's tap rule)
+        own = (thr >= F32(0.0)) & (thr < F32(1.0))
+        still = False
         for y in range(h):
             yb = y >> sh
             if y == 0 or yb != (y - 1) >> sh:  # a new row of blocks: its sources' values
+                moving = I32(0)
                 for x in range(w):
                     xb = np.int64(x) >> sh
                     V0[x] = smv_b(vec[0, yb, xb])
                     V1[x] = smv_b(vec[1, yb, xb])
                     HR[x] = np.int32(_prio(hi[yb, xb], np.int64(0)))
+                    moving |= I32((V0[x] != F32(0.0)) | (V1[x] != F32(0.0)))
                 for x in range(w):
                     PX[x] = F32(I32(x)) + V0[x] * a1
+                still = own & (moving == 0)
             VC = V0 if c == 0 else V1
+            if still:  # a row of blocks with zero vectors: each source at its own texel
+                r = (y + 1) * (w + 2) + 1
+                row = buf[r:r + w]
+                for x in range(w):
+                    row[x] = max(row[x], _pack(HR[x] | np.int32(lo[y, x]), VC[x]))
+                continue
             yf = F32(y)
             for x in range(w):
                 KY[x] = _pack(HR[x] | np.int32(lo[y, x]), VC[x])

@@ -422,6 +422,29 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
                 out[k, y, x] = sval_b(_lerp_b(cof, out[k, y, x], bias[y, x]))
 
 
+@njit(**INLINE)
+def _moving_row(v, y, w):
+    """1 when a vector of row y of v (2, H, W) is not zero (NaN counts as not zero), else
+    0: the row's samples along v are then its pixels themselves (_centres)."""
+    m = I32(0)
+    for x in range(w):
+        m |= I32((v[0, y, x] != F32(0.0)) | (v[1, y, x] != F32(0.0)))
+    return m
+
+
+@njit(**INLINE)
+def _centres(c, y, w, out, ins):
+    """The samples of row y along zero vectors (what the taps and fetches give there: the
+    sanitised pixels, every point on screen): out[k, x] = sval_b(c[k, y, x]), ins[x] = 1
+    (ins None: not written)."""
+    for k in range(3):
+        for x in range(w):
+            out[k, x] = sval_b(c[k, y, x])
+    if ins is not None:
+        for x in range(w):
+            ins[x] = F32(1.0)
+
+
 @njit(**ROWS)
 def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx,
                         ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T, G, S,
@@ -443,31 +466,35 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
         gyy = gyn[y]
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
-        # the game samples toward both frames
-        for x in range(w):
-            rx = smv_b(vec[0, y, x]) * a
-            ry = smv_b(vec[1, y, x]) * a
-            in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-            bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                     YA, YB, WT, Z)
-        for blk in range(nblk):
-            bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                         I32(y * w), P, w32, I32(0))
-        for x in range(16 * nblk, w):
-            _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
-                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
-        for x in range(w):
-            rx = smv_b(vec[0, y, x]) * na
-            ry = smv_b(vec[1, y, x]) * na
-            in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-            bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                     YA, YB, WT, Z)
-        for blk in range(nblk):
-            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                         I32(y * w), C, w32, I32(0))
-        for x in range(16 * nblk, w):
-            _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
-                    lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
+        # the game samples toward both frames (a row of zero vectors: its pixels)
+        if _moving_row(vec, y, w) == 0:
+            _centres(c0, y, w, P, in0)
+            _centres(c1, y, w, C, in1)
+        else:
+            for x in range(w):
+                rx = smv_b(vec[0, y, x]) * a
+                ry = smv_b(vec[1, y, x]) * a
+                in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
+                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                         YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), P, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
+                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
+            for x in range(w):
+                rx = smv_b(vec[0, y, x]) * na
+                ry = smv_b(vec[1, y, x]) * na
+                in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
+                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
+                         YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), C, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
+                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
             my = mask_cur[y, x] * in1[x]
@@ -480,27 +507,32 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
                 O[k, x] = _lerp_b(P[k, x], C[k, x], T[x])
         for x in range(w):
             S[x] = _similarity(P, C, x, eps, eps2)
-        # the optical-flow samples (into P and C: the game ones are used up)
-        for x in range(w):
-            bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
-                     gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-        for blk in range(nblk):
-            bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                         I32(y * w), P, w32, I32(0))
-        for x in range(16 * nblk, w):
-            _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                    F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                    hw32, P, x)
-        for x in range(w):
-            bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
-                     gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-        for blk in range(nblk):
-            bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                         I32(y * w), C, w32, I32(0))
-        for x in range(16 * nblk, w):
-            _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                    F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                    hw32, C, x)
+        # the optical-flow samples (into P and C: the game ones are used up; a row of zero
+        # vectors, as the static parts of a frame have: its pixels)
+        if _moving_row(of_vec, y, w) == 0:
+            _centres(c0, y, w, P, None)
+            _centres(c1, y, w, C, None)
+        else:
+            for x in range(w):
+                bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), P, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, P, x)
+            for x in range(w):
+                bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
+                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
+            for blk in range(nblk):
+                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
+                             I32(y * w), C, w32, I32(0))
+            for x in range(16 * nblk, w):
+                _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
+                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
+                        hw32, C, x)
         for x in range(w):
             s_of = _similarity(P, C, x, eps, eps2)
             b = S[x] / (eps if s_of < eps else s_of)
