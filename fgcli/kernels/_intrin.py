@@ -795,8 +795,7 @@ def bilinear16x3(typingctx, img, pst, w, h, XA, XB, YA, YB, WT, Z, j, coff, out,
     case. Plane p = 0, 1, 2 of img starts at p * pst, rows of w (C-contiguous float32, flat
     int32 offsets); its results go to out at p * opst + ooff + j (a frame's row, or a row
     buffer). Returns the fetch path (2, 3: window rows; 0: gathered; 1: every lane's Z set,
-    so the centres only, no tap fetched: static parts of a frame, ~0.2 ms per 1080p plane
-    pair where the flow is zero).
+    so the centres only, no tap fetched: the static parts of a frame).
 
     When no tap or centre of a plane is NaN or infinite (checked on the 16 lanes: the sum
     of every v - v is not NaN), the sanitising selects are skipped (they would change
