@@ -683,8 +683,8 @@ def test_window_fetch_intrinsics():
     per-lane loop of the scalar helpers: random taps (gathered), taps within 32 columns of
     two and three rows (windows), the last column and row, NaN / +-inf / huge values
     (sanitised only in the planes that have them), zero-flow lanes and blocks of them;
-    the returned fetch path covers all four. (AVX2 reads each half of 8 lanes from 16 columns: the spread
-    varies so that both fetches see windows and gathers.)"""
+    the returned fetch path covers all four. (AVX2 reads each half of 8 lanes from 16
+    columns: the spread varies so that both fetches see windows and gathers.)"""
     import numpy as np
     from numba import njit
 

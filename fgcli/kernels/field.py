@@ -409,7 +409,6 @@ def _row_samples(l0, V0, V1, y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA, YB,
         if moving == 0:
             for x in range(16 * nb):
                 s0[x] = sval_b(l0[y, x])  # (what the fetch gives along zero vectors)
-            for x in range(16 * nb):
                 ins[x] = F32(1.0)
     if WINDOW16 and moving != 0:  # the taps into row buffers (bil_taps), 16 pixels per fetch
         for x in range(w):

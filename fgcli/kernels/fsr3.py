@@ -243,6 +243,60 @@ def _similarity(pa, pb, ox, eps, eps2):
     return F32(1.0) if m2 <= eps2 else s
 
 
+@njit(**INLINE)
+def _moving_row(v, y, w):
+    """1 when a vector of row y of v (2, H, W) is not zero (NaN counts as not zero), else
+    0: the row's samples along v are then its pixels themselves (_centres). (The first
+    pixel first: a moving row, as a moving camera gives every row, costs no scan.)"""
+    if w > 0 and ((v[0, y, 0] != F32(0.0)) | (v[1, y, 0] != F32(0.0))):
+        return I32(1)
+    m = I32(0)
+    for x in range(w):
+        m |= I32((v[0, y, x] != F32(0.0)) | (v[1, y, x] != F32(0.0)))
+    return m
+
+
+@njit(**INLINE)
+def _centres(c, y, w, out, ins):
+    """The samples of row y along zero vectors (what the taps and fetches give there: the
+    sanitised pixels, every point on screen): out[k, x] = sval_b(c[k, y, x]), ins[x] = 1
+    (ins None: not written)."""
+    for k in range(3):
+        for x in range(w):
+            out[k, x] = sval_b(c[k, y, x])
+    if ins is not None:
+        for x in range(w):
+            ins[x] = F32(1.0)
+
+
+@njit(**INLINE)
+def _samples_along(c, v, s, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, lo_y, hi_y,
+                   XA, XB, YA, YB, WT, Z, out, ins):
+    """Row y of backward_warp(c, s * v) (3-plane colour, sanitised vectors v (2, H, W) times
+    the float32 scale s) into the row buffer out (3, W), and its inside_mask into ins
+    (None: not made): the taps into bil_taps' row buffers XA .. Z, 16 pixels per window
+    fetch, the last w % 16 one by one (_sample); a row of zero vectors takes its pixels
+    (_centres: no taps, no fetch)."""
+    w = out.shape[1]
+    if _moving_row(v, y, w) == 0:
+        _centres(c, y, w, out, ins)
+        return
+    nblk = w // 16
+    for x in range(w):
+        rx = smv_b(v[0, y, x]) * s
+        ry = smv_b(v[1, y, x]) * s
+        if ins is not None:
+            ins[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
+        bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB,
+                 WT, Z)
+    for blk in range(nblk):
+        bilinear16x3(c, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk), I32(y * w), out,
+                     w32, I32(0))
+    for x in range(16 * nblk, w):
+        _sample(c, smv_b(v[0, y, x]) * s, smv_b(v[1, y, x]) * s, x, y, F32(I32(x)), lo_y, hi_y,
+                gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, out, x)
+
+
 # Row buffers are float32, never bool, and each row loop does one kind of work: a bool row
 # buffer, or the optical-flow samples in the same prange body as the game samples, kept
 # LLVM from vectorising the gathers (4-10x slower at 1080p). Hence two kernels.
@@ -260,7 +314,6 @@ def _interp_game_rows(ya, yb, c0, c1, vec, mask_prev, mask_cur, has_of, a, na, n
     w32 = I32(w)
     h32 = I32(h)
     hw32 = I32(h * w)
-    nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for y in range(ya, yb):
@@ -269,30 +322,10 @@ def _interp_game_rows(ya, yb, c0, c1, vec, mask_prev, mask_cur, has_of, a, na, n
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
         if WINDOW16:  # taps into row buffers, then 16 pixels per fetch, the rest per pixel
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * a
-                ry = smv_b(vec[1, y, x]) * a
-                in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), P, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * na
-                ry = smv_b(vec[1, y, x]) * na
-                in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), C, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
+            _samples_along(c0, vec, a, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32,
+                           lo_y, hi_y, XA, XB, YA, YB, WT, Z, P, in0)
+            _samples_along(c1, vec, na, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32,
+                           lo_y, hi_y, XA, XB, YA, YB, WT, Z, C, in1)
         else:
             for x in range(w):
                 in0[x] = F32(_sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x,
@@ -422,29 +455,6 @@ def interp_flow_kernel(c0, c1, of_vec, a, na, gxn, gyn, kx, ky, T, G, S, out, bi
                 out[k, y, x] = sval_b(_lerp_b(cof, out[k, y, x], bias[y, x]))
 
 
-@njit(**INLINE)
-def _moving_row(v, y, w):
-    """1 when a vector of row y of v (2, H, W) is not zero (NaN counts as not zero), else
-    0: the row's samples along v are then its pixels themselves (_centres)."""
-    m = I32(0)
-    for x in range(w):
-        m |= I32((v[0, y, x] != F32(0.0)) | (v[1, y, x] != F32(0.0)))
-    return m
-
-
-@njit(**INLINE)
-def _centres(c, y, w, out, ins):
-    """The samples of row y along zero vectors (what the taps and fetches give there: the
-    sanitised pixels, every point on screen): out[k, x] = sval_b(c[k, y, x]), ins[x] = 1
-    (ins None: not written)."""
-    for k in range(3):
-        for x in range(w):
-            out[k, x] = sval_b(c[k, y, x])
-    if ins is not None:
-        for x in range(w):
-            ins[x] = F32(1.0)
-
-
 @njit(**ROWS)
 def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na, nb, gxn, gyn, kx,
                         ky, out, holes, bias, XA, XB, YA, YB, WT, Z, P, C, O, in0, in1, T, G, S,
@@ -458,7 +468,6 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
     w32 = I32(w)
     h32 = I32(h)
     hw32 = I32(h * w)
-    nblk = w // 16
     eps = F32(1e-6)
     eps2 = F32(1e-6 * 1e-6)
     for y in range(ya, yb):
@@ -466,35 +475,11 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
         gyy = gyn[y]
         lo_y = F32(-0.5) - yf
         hi_y = F32(h - 0.5) - yf
-        # the game samples toward both frames (a row of zero vectors: its pixels)
-        if _moving_row(vec, y, w) == 0:
-            _centres(c0, y, w, P, in0)
-            _centres(c1, y, w, C, in1)
-        else:
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * a
-                ry = smv_b(vec[1, y, x]) * a
-                in0[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), P, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c0, smv_b(vec[0, y, x]) * a, smv_b(vec[1, y, x]) * a, x, y, F32(I32(x)),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, P, x)
-            for x in range(w):
-                rx = smv_b(vec[0, y, x]) * na
-                ry = smv_b(vec[1, y, x]) * na
-                in1[x] = F32(_inside(rx, ry, F32(I32(x)), lo_y, hi_y, w32))
-                bil_taps(rx, ry, x, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB,
-                         YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), C, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c1, smv_b(vec[0, y, x]) * na, smv_b(vec[1, y, x]) * na, x, y, F32(I32(x)),
-                        lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, C, x)
+        # the game samples toward both frames
+        _samples_along(c0, vec, a, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, lo_y,
+                       hi_y, XA, XB, YA, YB, WT, Z, P, in0)
+        _samples_along(c1, vec, na, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32, lo_y,
+                       hi_y, XA, XB, YA, YB, WT, Z, C, in1)
         for x in range(w):
             mx = mask_prev[y, x] * in0[x]
             my = mask_cur[y, x] * in1[x]
@@ -507,32 +492,11 @@ def _interp_window_rows(ya, yb, c0, c1, vec, of_vec, mask_prev, mask_cur, a, na,
                 O[k, x] = _lerp_b(P[k, x], C[k, x], T[x])
         for x in range(w):
             S[x] = _similarity(P, C, x, eps, eps2)
-        # the optical-flow samples (into P and C: the game ones are used up; a row of zero
-        # vectors, as the static parts of a frame have: its pixels)
-        if _moving_row(of_vec, y, w) == 0:
-            _centres(c0, y, w, P, None)
-            _centres(c1, y, w, C, None)
-        else:
-            for x in range(w):
-                bil_taps(smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, gxn[x],
-                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c0, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), P, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c0, smv_b(of_vec[0, y, x]) * a, smv_b(of_vec[1, y, x]) * a, x, y,
-                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                        hw32, P, x)
-            for x in range(w):
-                bil_taps(smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, gxn[x],
-                         gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, XA, XB, YA, YB, WT, Z)
-            for blk in range(nblk):
-                bilinear16x3(c1, hw32, w32, h32, XA, XB, YA, YB, WT, Z, I32(16 * blk),
-                             I32(y * w), C, w32, I32(0))
-            for x in range(16 * nblk, w):
-                _sample(c1, smv_b(of_vec[0, y, x]) * na, smv_b(of_vec[1, y, x]) * na, x, y,
-                        F32(I32(x)), lo_y, hi_y, gxn[x], gyy, kx, ky, hw, hh, wm1, hm1, w32, h32,
-                        hw32, C, x)
+        # the optical-flow samples (into P and C: the game ones are used up)
+        _samples_along(c0, of_vec, a, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32,
+                       lo_y, hi_y, XA, XB, YA, YB, WT, Z, P, None)
+        _samples_along(c1, of_vec, na, y, gxn, gyy, kx, ky, hw, hh, wm1, hm1, w32, h32, hw32,
+                       lo_y, hi_y, XA, XB, YA, YB, WT, Z, C, None)
         for x in range(w):
             s_of = _similarity(P, C, x, eps, eps2)
             b = S[x] / (eps if s_of < eps else s_of)
