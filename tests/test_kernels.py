@@ -1043,6 +1043,37 @@ def test_fsr3_field_scatter_runs():
                 same("depth runs", k, r)
 
 
+def test_fsr3_walk_over_threads():
+    """The secondary walk with both threads writing the fields (atomic maxima, nothing
+    written at primary texels): a frame of 128 rows (every chunk of the parallel loop
+    holds rows) where a layer moving 30 px over a static one leaves a wide disocclusion
+    that the walks of many sources, from chunks on both threads, write into and compete
+    for (random priorities), and long walks that stop at their fourth primary texel: the
+    reference's field, exactly, on every run (the maxima do not depend on the threads'
+    order)."""
+    from fgcli.ops import fsr3
+
+    g = torch.Generator().manual_seed(17)
+    h, w = 128, 96
+    c0, c1 = torch.rand(3, h, w, generator=g), torch.rand(3, h, w, generator=g)
+    v = torch.zeros(2, h, w)
+    v[0, :, : w // 2] = 30.0 + torch.rand(h, w // 2, generator=g) * 4.0
+    v[1, :, : w // 2] = torch.randn(h, w // 2, generator=g) * 6.0
+    v[:, 40:60] *= -1.0  # walks crossing each other
+    hi = (fsr3.magnitude_priority(v) + torch.randint(0, 7, (h, w), generator=g)).clamp(max=1023)
+    d = torch.rand(1, h, w, generator=g) + 0.5
+    for a in (0.5, 0.25):
+        ref = fsr3.vector_field(c0, c1, v, hi, a, True, 64)
+        sec = ref[0] < (1 << 31)
+        assert (sec & (ref[0] > 0)).sum() > 500  # (secondary entries the walk wrote)
+        for _ in range(3):
+            same("walk over threads", _kfield(c0, c1, v, hi, a, True, 64), ref)
+        gref = fsr3.vector_field(c0, c1, v, fsr3.depth_priority(d), a, True)
+        for _ in range(3):
+            same("game walk over threads",
+                 K.game_vector_field(c0, c1, v, d, a, True).to(torch.int64), gref)
+
+
 def test_fsr3_lengths_take_torchs_sqrt():
     """The short-vector test of depth reconstruction and the secondary walk's lengths use
     torch.sqrt over the whole plane, as the reference (MKL's on x86 builds, which differs

@@ -1,8 +1,8 @@
 """LLVM operations numba does not expose: a fused multiply-add (torch's vectorised CPU
 kernels use FMA for ``add(alpha=)``, ``lerp`` and friends, so the kernels must too to stay
-bit-identical), an atomic signed int64 minimum (the nearest-depth-wins splat), 32-bit
-indexed loads for the gathers (``mad32``, ``ld32``, ``ld_pair``), SSE4.1's mpsadbw
-(the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps'
+bit-identical), an atomic signed int64 minimum (the nearest-depth-wins splat), an atomic
+uint32 maximum (FSR 3's secondary walk), 32-bit indexed loads for the gathers (``mad32``,
+``ld32``, ``ld_pair``), SSE4.1's mpsadbw (the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps'
 16-lane tap fetches from windows of source rows (``bilinear16x3``, ``nearest16``, ...:
 AVX-512 or AVX2)."""
 from __future__ import annotations
@@ -42,6 +42,25 @@ def atomic_min_i64(typingctx, arr, idx, val):
         v = context.cast(builder, args[2], valty, types.int64)
         ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
         builder.atomic_rmw("min", ptr, v, "monotonic")
+        return context.get_dummy_value()
+
+    return types.void(arr, idx, val), codegen
+
+
+@intrinsic
+def atomic_max_u32(typingctx, arr, idx, val):
+    """arr[idx] = max(arr[idx], val) atomically (1-D uint32 array, unsigned; LLVM's
+    ``atomicrmw umax``, a compare-and-swap loop on x86)."""
+    if not (isinstance(arr, types.Array) and arr.dtype == types.uint32 and arr.ndim == 1):
+        return None
+
+    def codegen(context, builder, sig, args):
+        aryty, idxty, valty = sig.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        i = context.cast(builder, args[1], idxty, types.intp)
+        v = context.cast(builder, args[2], valty, types.uint32)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
+        builder.atomic_rmw("umax", ptr, v, "monotonic")
         return context.get_dummy_value()
 
     return types.void(arr, idx, val), codegen

@@ -13,8 +13,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, dealt, f2i64, sdepth_b,
                                    smv_b, step_code, sval_b)
-from fgcli.kernels._intrin import (HAVE_WINDOW16, bilinear16x1, fmin16x2, ld32, mad32,
-                                   umax16x2)
+from fgcli.kernels._intrin import (HAVE_WINDOW16, atomic_max_u32, bilinear16x1, fmin16x2,
+                                   ld32, mad32, umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -125,9 +125,9 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
     writes): 8.7 -> 7 ms on the benchmark's scene, no change on footage with large,
     varied motion (/tmp/nuke8: 16-20 ms either way, the footprint pass itself ~9).
 
-    Three kernels (this one, field_walk_kernel, field_merge_kernel), not three prange
-    loops in one: numba fuses consecutive parallel loops of the same length, which would
-    run a walk before the other component's primaries exist."""
+    Two kernels (this one, then field_walk_kernel), not two prange loops in one: numba
+    fuses consecutive parallel loops of the same length, which would run a walk before
+    the other component's primaries exist."""
     n = pos.shape[1]
     for pc in prange(2):
         c = np.int64(pc)
@@ -149,70 +149,54 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
                          k0, k1, k2, k3, brk)
 
 
-@njit(**KERNEL)
-def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1, sb0, sb1):
-    """vector_field's secondary walk after field_scatter_kernel, both components in one
-    walk: dist (N,) float32 walk lengths, d (2, N) unit steps, at most ``steps`` steps.
-    A source's walk is the same for both components (each source wrote both at the same
-    taps with the same priority bits, so a texel's primary flag is the same in both
-    buffers and buf0's count is either's), so each thread walks half of the sources
-    (alternate blocks of 16 rows) once and writes both components: the first thread into
-    buf0 / buf1 themselves, the second into sb0 / sb1 (zeroed here), which
-    field_merge_kernel then takes the maxima of (their order does not matter: the serial
-    walk's result). The first thread's writes never change a flag the second reads: a
-    secondary entry (below 2**31) only replaces a smaller one. The entries are written as
-    unconditional max stores (no data-dependent branch: 26 -> 20 ms on Nuke-layout
-    footage with 3x the scene's motion, where the walks are long; the same on the
-    scene); the hit count and the step's exits stay branches (branchless, 29 ms)."""
+@njit(**INLINE)
+def _walk(buf0, buf1, px, py, d0, d1, di, a0, a1, steps, w, h):
+    """One source's secondary walk back from its footprint (vector_field's): at most
+    ``steps`` unit steps (d0, d1) from (px, py) while the step is within its length di and
+    it has hit at most 3 primary texels; its entries a0, a1 (below 2**31) into the padded
+    fields buf0, buf1 ((h + 2) * (w + 2), flat) by atomic maxima. A texel holding a primary
+    entry (2**31 and above) keeps it whatever is written there, so nothing is written
+    there (on a moving camera ~95 % of the steps, the walk hitting the texels its
+    neighbours' footprints cover); a texel's primary flag is the same in both fields (each
+    source wrote both at the same taps with the same priority bits) and never changes
+    during the walk (a secondary entry only replaces a smaller one), so the count is
+    buf0's, read while other threads write. The maxima do not depend on the order of the
+    writes: the serial walk's fields, whatever the threads."""
     w2 = w + 2
-    for pt in prange(2):
-        t = np.int64(pt)
-        s0 = buf0 if t == 0 else sb0
-        s1 = buf1 if t == 0 else sb1
-        if t != 0:
-            for q in range(s0.shape[0]):
-                s0[q] = 0
-                s1[q] = 0
-        # secondary entries walk back from the footprint, counting primary texels hit
-        for y in range(h):
-            if ((y >> 4) & 1) != t:
-                continue
-            for x in range(w):
-                i = y * w + x
-                di = dist[i]
-                if not di >= F32(1.0):
-                    continue
-                a0 = key0[i] - _PRIMARY
-                a1 = key1[i] - _PRIMARY
-                hits = 0
-                for k in range(1, steps + 1):
-                    if not (di >= F32(k)) or hits > 3:
-                        break
-                    kf = F32(k)
-                    qx = pos[0, i] - d[0, i] * kf
-                    qy = pos[1, i] - d[1, i] * kf
-                    xi = f2i64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-                    yi = f2i64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
-                    if xi < 1 or xi > w or yi < 1 or yi > h:
-                        continue
-                    q = yi * w2 + xi
-                    if buf0[q] >= _PRIMARY:
-                        hits += 1
-                    if hits > 3:
-                        continue
-                    s0[q] = max(s0[q], a0)
-                    s1[q] = max(s1[q], a1)
+    hits = 0
+    for k in range(1, steps + 1):
+        if not (di >= F32(k)) or hits > 3:
+            break
+        kf = F32(k)
+        qx = px - d0 * kf
+        qy = py - d1 * kf
+        xi = f2i64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
+        yi = f2i64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
+        if xi < 1 or xi > w or yi < 1 or yi > h:
+            continue
+        q = yi * w2 + xi
+        if buf0[q] >= _PRIMARY:
+            hits += 1
+            continue
+        if a0 > buf0[q]:  # (entries only grow: one read already at or above a0 is final)
+            atomic_max_u32(buf0, q, a0)
+        if a1 > buf1[q]:
+            atomic_max_u32(buf1, q, a1)
 
 
 @njit(**KERNEL)
-def field_merge_kernel(buf0, buf1, sb0, sb1):
-    """buf_c = max(buf_c, sb_c): the second walking thread's entries into the field."""
-    for pc in prange(2):
-        c = np.int64(pc)
-        buf = buf0 if c == 0 else buf1
-        sb = sb0 if c == 0 else sb1
-        for q in range(buf.shape[0]):
-            buf[q] = sb[q] if sb[q] > buf[q] else buf[q]
+def field_walk_kernel(pos, key0, key1, dist, d, h, w, steps, buf0, buf1):
+    """vector_field's secondary walk after field_scatter_kernel, both components in one
+    walk (_walk): dist (N,) float32 walk lengths, d (2, N) unit steps, at most ``steps``
+    steps; sources in row order (N = h * w), rows dealt out to the threads in chunks."""
+    nch = min(h, 64)
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        for i in range(ch * h // nch * w, (ch + 1) * h // nch * w):
+            di = dist[i]
+            if di >= F32(1.0):
+                _walk(buf0, buf1, pos[0, i], pos[1, i], d[0, i], d[1, i], di,
+                      key0[i] - _PRIMARY, key1[i] - _PRIMARY, steps, w, h)
 
 
 @njit(**KERNEL)
@@ -679,57 +663,100 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
             _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
 
 
-@njit(**KERNEL)
-def field_walk_prio_kernel(vec, prio, dist, a1, steps, buf0, buf1, sb0, sb1):
-    """field_walk_kernel of entries_prio_kernel's sources (dist (H, W): the walk lengths,
-    torch.sqrt of its squares): a walking pixel's position, entries and unit step (the
-    reference's sanitize_mv(v) / dist.clamp(min=1e-6)) made as it starts."""
+@njit(**INLINE)
+def _walk_texel(px, py, d0, d1, kf, w32, h32, w2):
+    """Step kf of a walk (_walk's texel): (1 when it is on the frame else 0, its flat index
+    in the padded field, clamped onto it either way), int32."""
+    xi = I32(clamp_b(np.floor(px - d0 * kf), F32(-1.0), F32(w32))) + I32(1)
+    yi = I32(clamp_b(np.floor(py - d1 * kf), F32(-1.0), F32(h32))) + I32(1)
+    on = (xi >= I32(1)) & (xi <= w32) & (yi >= I32(1)) & (yi <= h32)
+    return I32(on), mad32(yi, w2, xi)
+
+
+@njit(**INLINE)
+def _walk_pixel(vec, prio, di, x, y, a1, steps, buf0, buf1):
+    """_walk of pixel (x, y) of entries_prio_kernel's sources (walk length di >= 1): its
+    position p + a1 v, unit step (the reference's sanitize_mv(v) / dist.clamp(min=1e-6))
+    and entries made here."""
     h, w = prio.shape
-    w2 = w + 2
-    for pt in prange(2):
-        t = np.int64(pt)
-        s0 = buf0 if t == 0 else sb0
-        s1 = buf1 if t == 0 else sb1
-        if t != 0:
-            for q in range(s0.shape[0]):
-                s0[q] = 0
-                s1[q] = 0
-        # secondary entries walk back from the footprint, counting primary texels hit
-        for y in range(h):
-            if ((y >> 4) & 1) != t:
-                continue
+    vx = smv_b(vec[0, y, x])
+    vy = smv_b(vec[1, y, x])
+    cl = F32(1e-6) if di < F32(1e-6) else di
+    pr = np.int64(prio[y, x])
+    _walk(buf0, buf1, F32(I32(x)) + vx * a1, F32(y) + vy * a1, vx / cl, vy / cl, di,
+          np.uint32(_pack(pr, vx)) - _PRIMARY, np.uint32(_pack(pr, vy)) - _PRIMARY, steps, w, h)
+
+
+@njit(**ROWS)
+def _walk_prio_rows(ya, yb, vec, prio, dist, cnt, a1, steps, buf0, buf1, done, Q):
+    """field_walk_prio_kernel's rows ya..yb, with the chunk's row buffers done (W,) and Q
+    (4, W) int32. In a row where at least a quarter of the pixels walk (a moving camera:
+    all of them) the walks that end at their fourth step having hit a primary texel at
+    each are found first and skipped: they write nothing (_walk). On a moving camera that
+    is most of them (the texels behind a source are its neighbours' footprints; 93 % on
+    the orbit scene at 1080p). Their first four texels in a vectorised loop, then the
+    four reads in a scalar one (LLVM does not gather on Zen 3: a loop with the reads left
+    every step scalar), then the other walks as before."""
+    h, w = prio.shape
+    w32 = I32(w)
+    h32 = I32(h)
+    w2 = I32(w + 2)
+    for y in range(ya, yb):
+        yf = F32(y)
+        dr = dist[y]
+        n = cnt[y]
+        if n == 0:
+            continue
+        quick = steps >= 4 and 4 * n >= w
+        if quick:
             for x in range(w):
-                di = dist[y, x]
-                if not di >= F32(1.0):
-                    continue
+                di = dr[x]
                 vx = smv_b(vec[0, y, x])
                 vy = smv_b(vec[1, y, x])
-                px = F32(I32(x)) + vx * a1
-                py = F32(y) + vy * a1
                 cl = F32(1e-6) if di < F32(1e-6) else di
+                px = F32(I32(x)) + vx * a1
+                py = yf + vy * a1
                 d0 = vx / cl
                 d1 = vy / cl
-                pr = np.int64(prio[y, x])
-                a0 = np.uint32(_pack(pr, vx)) - _PRIMARY
-                a1_ = np.uint32(_pack(pr, vy)) - _PRIMARY
-                hits = 0
-                for k in range(1, steps + 1):
-                    if not (di >= F32(k)) or hits > 3:
-                        break
-                    kf = F32(k)
-                    qx = px - d0 * kf
-                    qy = py - d1 * kf
-                    xi = f2i64(clamp_b(np.floor(qx), F32(-1.0), F32(w))) + 1
-                    yi = f2i64(clamp_b(np.floor(qy), F32(-1.0), F32(h))) + 1
-                    if xi < 1 or xi > w or yi < 1 or yi > h:
-                        continue
-                    q = yi * w2 + xi
-                    if buf0[q] >= _PRIMARY:
-                        hits += 1
-                    if hits > 3:
-                        continue
-                    s0[q] = max(s0[q], a0)
-                    s1[q] = max(s1[q], a1_)
+                o1, q1 = _walk_texel(px, py, d0, d1, F32(1.0), w32, h32, w2)
+                o2, q2 = _walk_texel(px, py, d0, d1, F32(2.0), w32, h32, w2)
+                o3, q3 = _walk_texel(px, py, d0, d1, F32(3.0), w32, h32, w2)
+                o4, q4 = _walk_texel(px, py, d0, d1, F32(4.0), w32, h32, w2)
+                done[x] = I32(di >= F32(4.0)) & o1 & o2 & o3 & o4
+                Q[0, x] = q1
+                Q[1, x] = q2
+                Q[2, x] = q3
+                Q[3, x] = q4
+            for x in range(w):
+                if done[x] != 0:
+                    p = (ld32(buf0, Q[0, x]) & ld32(buf0, Q[1, x]) & ld32(buf0, Q[2, x])
+                         & ld32(buf0, Q[3, x]))
+                    done[x] = I32(p >> np.uint32(31))  # (all four primary: 2**31 and above)
+            for x in range(w):
+                if dr[x] >= F32(1.0) and done[x] == 0:
+                    _walk_pixel(vec, prio, dr[x], x, y, a1, steps, buf0, buf1)
+        else:
+            for x in range(w):
+                if dr[x] >= F32(1.0):
+                    _walk_pixel(vec, prio, dr[x], x, y, a1, steps, buf0, buf1)
+
+
+@njit(**KERNEL)
+def field_walk_prio_kernel(vec, prio, dist, cnt, a1, steps, buf0, buf1):
+    """field_walk_kernel of entries_prio_kernel's sources (dist (H, W): the walk lengths,
+    torch.sqrt of its squares; cnt (H,) int64: the pixels of each row that walk, or more
+    (none: the row is skipped; a quarter of the row or more: the quick pass)): a walking
+    pixel's position, entries and unit step (the
+    reference's sanitize_mv(v) / dist.clamp(min=1e-6)) made as it starts (_walk), walks
+    that would write nothing found first (_walk_prio_rows)."""
+    h, w = prio.shape
+    nch = min(h, 64)
+    for pch in prange(nch):
+        ch = dealt(pch, nch)  # (each thread's chunks spread over the frame)
+        done = np.empty(w, dtype=np.int32)
+        Q = np.empty((4, w), dtype=np.int32)
+        _walk_prio_rows(ch * h // nch, (ch + 1) * h // nch, vec, prio, dist, cnt, a1, steps,
+                        buf0, buf1, done, Q)
 
 
 @njit(**KERNEL)

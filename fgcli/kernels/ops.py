@@ -865,7 +865,6 @@ def _warm_kernels(families=None) -> tuple:
             kernels += (flow.block_search_kernel,)
         kernels += (flow.vector_median3_kernel,
                     field.field_scatter_kernel, field.field_walk_kernel,
-                    field.field_merge_kernel,
                     field.depth_scatter_pair_kernel, fsr3.disocclusion_kernel,
                     fsr3.interp_game_kernel, pyramid.pool2_kernel,
                     fsr3.interp_window_kernel if HAVE_WINDOW16 else fsr3.interp_flow_kernel,
@@ -1233,8 +1232,8 @@ def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, lu
     are depth_priority(depth), made by the priority kernel (game_vector_field)."""
     from fgcli.ops import fsr3 as FS
 
-    from fgcli.kernels.field import (entries_prio_kernel, field_merge_kernel,
-                                     field_scatter_prio_kernel, field_walk_prio_kernel)
+    from fgcli.kernels.field import (entries_prio_kernel, field_scatter_prio_kernel,
+                                     field_walk_prio_kernel)
     from fgcli.kernels.warp import flat_ok
 
     if depth is not None:
@@ -1274,10 +1273,7 @@ def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, lu
             torch.sqrt(dt, out=dt)  # the reference's sqrt (MKL's: not IEEE's everywhere)
             steps = int(min(max_secondary, np.floor(float(dt.max()))))
         if steps >= 1:
-            n = (h + 2) * (w + 2)
-            sec = [np.empty(n, dtype=np.uint32) for _ in range(2)]  # (zeroed by the kernel)
-            field_walk_prio_kernel(va, prio, dist, a1, steps, buf[0], buf[1], *sec)
-            field_merge_kernel(buf[0], buf[1], *sec)
+            field_walk_prio_kernel(va, prio, dist, cnt, a1, steps, buf[0], buf[1])
     return torch.from_numpy(padded)[:, 1:h + 1, 1:w + 1]
 
 
@@ -1370,7 +1366,7 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
         return r
     # other inputs (frames too large for pair loads, priorities of another type): the
     # reference's own entries, scattered by the kernels
-    from fgcli.kernels.field import field_merge_kernel, field_scatter_kernel, field_walk_kernel
+    from fgcli.kernels.field import field_scatter_kernel, field_walk_kernel
 
     vf, pos, _, _, keys, (h, w, a) = FS.field_entries(color0, color1, vec, hi, alpha, luma0)
     k0, k1 = [_a(k).astype(np.uint32) for k in keys]  # (entries are below 2**32)
@@ -1382,10 +1378,8 @@ def vector_field(color0, color1, vec, hi, alpha=0.5, secondary=True, max_seconda
         dt = FS._length(vf * (1.0 - a))
         steps = int(min(max_secondary, np.floor(float(dt.max()))))
         if steps >= 1:
-            sec = [np.empty((h + 2) * (w + 2), dtype=np.uint32) for _ in range(2)]
             field_walk_kernel(pa, k0, k1, _a(dt), _a(vf / dt.clamp(min=1e-6)), h, w, steps,
-                              buf[0], buf[1], *sec)  # (sec: zeroed by the kernel)
-            field_merge_kernel(buf[0], buf[1], *sec)
+                              buf[0], buf[1])
     # the interior of the padded buffers, as a view (unpack_vector_field reads it in place;
     # the stacked copy cost 1.4 ms per 1080p field); uint32, not the reference's int64:
     # the entries are below 2**32, and half the bytes made the scatter ~30 % faster
