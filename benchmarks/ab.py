@@ -2,6 +2,7 @@
 
     python benchmarks/ab.py REV [--pipelines gffe-extrap,fsr3-interp] [--repeat 15]
                                 [--sequence] [--size 1920x1080] [--backend numba]
+                                [--input FOLDER]
 
 On a machine whose speed swings 10-30 % between runs (the 2-core build box), two
 benchmark runs cannot show a change of a few percent; alternating the two versions on
@@ -9,7 +10,9 @@ the same frames in one process can. REV (a git revision of this checkout) is exp
 into a cache folder (~/.cache/fgen-ab/<commit>) as the package ``fgcli_ab`` (every
 ``fgcli`` import renamed; its own numba kernel cache, compiled there once: a few
 minutes), the checkout's own package is the other side. Frames: the bundled blade scene
-at 1/4 size, upscaled (as benchmarks/stages.py). Prints, per pipeline and mode, the
+at 1/4 size, upscaled (as benchmarks/stages.py; a static camera), or with ``--input`` the
+first frames of an EXR sequence (a moving camera: `fgen synth
+sample_data/scenes/orbit.toml F --size 1920x1080 --frames 8 --spp 1`). Prints, per pipeline and mode, the
 median and minimum ms per frame of each version and the median of the per-frame ratios
 (new / old, each pair measured back to back).
 """
@@ -98,6 +101,8 @@ def main():
                     help="consecutive pairs, each version's state carried over")
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--backend", default="numba")
+    ap.add_argument("--input", default=None, metavar="FOLDER",
+                    help="frames from this EXR sequence instead of the blade scene")
     args = ap.parse_args()
     base = export(args.rev)
     env = dict(os.environ, PYTHONPATH=base)
@@ -117,7 +122,16 @@ def main():
     check_device("cpu")
     times = ([(2.0 + 0.5 * i, 1.0 + 0.5 * i) for i in range(args.repeat + 2)]
              if args.sequence else [(3.0, 2.0), (4.0, 3.0)])
-    seq = blade_frames(args.size, times)
+    if args.input:
+        from fgcli.io.reader import SequenceReader
+
+        reader = SequenceReader(args.input)
+        if len(reader.numbers) < len(times):
+            sys.exit(f"--input: {len(times)} frames needed, {len(reader.numbers)} found")
+        seq = [reader.read(n).replace(normal=None, albedo=None, roughness=None, alpha=None)
+               for n in reader.numbers[:len(times)]]
+    else:
+        seq = blade_frames(args.size, times)
     sides = {"old": (P_old, make_ctx_old, RunState_old), "new": (P_new, make_ctx, RunState)}
     print(f"| pipeline | mode | {args.rev} ms (min) | this checkout ms (min) | new / old |")
     print("|---|---|---|---|---|")
