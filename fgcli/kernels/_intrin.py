@@ -29,41 +29,34 @@ def fma(typingctx, a, b, c):
     return a(a, b, c), codegen
 
 
-@intrinsic
-def atomic_min_i64(typingctx, arr, idx, val):
-    """arr[idx] = min(arr[idx], val) atomically (1-D int64 array, signed)."""
-    if not (isinstance(arr, types.Array) and arr.dtype == types.int64 and arr.ndim == 1):
-        return None
+def _atomic(rmw, elem, doc):
+    """An intrinsic f(arr, idx, val): arr[idx] = rmw(arr[idx], val) atomically (LLVM's
+    ``atomicrmw``, monotonic) on a 1-D array of numba type elem."""
+    @intrinsic
+    def op(typingctx, arr, idx, val):
+        if not (isinstance(arr, types.Array) and arr.dtype == elem and arr.ndim == 1):
+            return None
 
-    def codegen(context, builder, sig, args):
-        aryty, idxty, valty = sig.args
-        ary = context.make_array(aryty)(context, builder, args[0])
-        i = context.cast(builder, args[1], idxty, types.intp)
-        v = context.cast(builder, args[2], valty, types.int64)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
-        builder.atomic_rmw("min", ptr, v, "monotonic")
-        return context.get_dummy_value()
+        def codegen(context, builder, sig, args):
+            aryty, idxty, valty = sig.args
+            ary = context.make_array(aryty)(context, builder, args[0])
+            i = context.cast(builder, args[1], idxty, types.intp)
+            v = context.cast(builder, args[2], valty, elem)
+            ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
+            builder.atomic_rmw(rmw, ptr, v, "monotonic")
+            return context.get_dummy_value()
 
-    return types.void(arr, idx, val), codegen
+        return types.void(arr, idx, val), codegen
+
+    op.__doc__ = doc
+    return op
 
 
-@intrinsic
-def atomic_max_u32(typingctx, arr, idx, val):
-    """arr[idx] = max(arr[idx], val) atomically (1-D uint32 array, unsigned; LLVM's
-    ``atomicrmw umax``, a compare-and-swap loop on x86)."""
-    if not (isinstance(arr, types.Array) and arr.dtype == types.uint32 and arr.ndim == 1):
-        return None
-
-    def codegen(context, builder, sig, args):
-        aryty, idxty, valty = sig.args
-        ary = context.make_array(aryty)(context, builder, args[0])
-        i = context.cast(builder, args[1], idxty, types.intp)
-        v = context.cast(builder, args[2], valty, types.uint32)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
-        builder.atomic_rmw("umax", ptr, v, "monotonic")
-        return context.get_dummy_value()
-
-    return types.void(arr, idx, val), codegen
+atomic_min_i64 = _atomic("min", types.int64,
+                         "arr[idx] = min(arr[idx], val) atomically (1-D int64 array, signed).")
+atomic_max_u32 = _atomic("umax", types.uint32,
+                         "arr[idx] = max(arr[idx], val) atomically (1-D uint32 array, unsigned; "
+                         "a compare-and-swap loop on x86).")
 
 
 @intrinsic
