@@ -2,9 +2,9 @@
 kernels use FMA for ``add(alpha=)``, ``lerp`` and friends, so the kernels must too to stay
 bit-identical), an atomic signed int64 minimum (the nearest-depth-wins splat), an atomic
 uint32 maximum (FSR 3's secondary walk), 32-bit indexed loads for the gathers (``mad32``,
-``ld32``, ``ld_pair``), SSE4.1's mpsadbw (the block search), 16-lane maxima and minima (``umax16``, ``fmin16``) and the warps'
-16-lane tap fetches from windows of source rows (``bilinear16x3``, ``nearest16``, ...:
-AVX-512 or AVX2)."""
+``ld32``, ``ld_pair``), SSE4.1's mpsadbw (the block search), 16-lane maxima and minima
+(``umax16``, ``fmin16``) and the warps' 16-lane tap fetches from windows of source rows
+(``bilinear16x3``, ``nearest16``, ...: AVX-512 or AVX2)."""
 from __future__ import annotations
 
 import sys

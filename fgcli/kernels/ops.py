@@ -1241,7 +1241,8 @@ def _pixel_field(color0, color1, vec, hi, alpha, walk_on, max_secondary, thr, lu
             return None
     elif hi.dtype != torch.int64 or hi.numel() != vec[0].numel():
         return None
-    if color0.shape[0] != 3 or not flat_ok(*vec.shape[-2:], 1):
+    vh, vw = vec.shape[-2:]  # (the walk's pre-pass indexes the padded fields in int32)
+    if color0.shape[0] != 3 or not (flat_ok(vh, vw, 1) and flat_ok(vh + 2, vw + 2, 1)):
         return None
     color0, color1, vec, a = FS.entries_args(color0, color1, vec, alpha)
     h, w = color1.shape[-2:]
