@@ -1,8 +1,9 @@
 """The numba kernels one at a time: where a pipeline's time goes, and old vs new of one kernel.
 
     python benchmarks/kernels.py profile --pipelines fsr3-interp [--repeat 9] [--size WxH]
+                                 [--input FOLDER]
     python benchmarks/kernels.py ab fsr3.interp_window_kernel REV --pipeline fsr3-interp
-                                 [--mode interp] [--call 1] [--repeat 30]
+                                 [--mode interp] [--call 1] [--repeat 30] [--input FOLDER]
 
 ``profile`` wraps every compiled kernel of fgcli.kernels.* (after they are loaded, so the
 kernels that call each other stay compiled together) with a clock and runs the pipelines
@@ -35,13 +36,24 @@ MODULES = ("blend", "field", "fill", "flow", "fsr3", "geom", "gffe", "pyramid", 
            "splat", "warp")
 
 
-def frames(size: str):
-    """The two frames of benchmarks/stages.py and ab.py, with fgen's allocator set-up."""
+def frames(size: str, folder: str | None = None):
+    """The two frames of benchmarks/stages.py and ab.py (blade, a static camera), or the
+    first two of the EXR sequence in folder (a moving camera: `fgen synth
+    sample_data/scenes/orbit.toml F --size 1920x1080 --frames 8 --spp 1`), with fgen's
+    allocator set-up."""
     from ab import blade_frames
 
     from fgcli.runner import check_device
 
     check_device("cpu")  # what fgen does at start-up (allocator tuning)
+    if folder:
+        from fgcli.io.reader import SequenceReader
+
+        r = SequenceReader(folder)
+        if len(r.numbers) < 2:
+            sys.exit(f"--input: 2 frames needed, {len(r.numbers)} found in {folder}")
+        return [r.read(n).replace(normal=None, albedo=None, roughness=None, alpha=None)
+                for n in r.numbers[:2]]
     return blade_frames(size, [(3.0, 2.0), (4.0, 3.0)])
 
 
@@ -78,7 +90,7 @@ def profile(args):
     from fgcli.kernels.ops import warm
 
     warm()
-    seq = frames(args.size)
+    seq = frames(args.size, args.input)
     clocks: dict[str, list[float]] = {}
 
     def wrap(name, fn):
@@ -141,7 +153,7 @@ def ab(args):
     new_mod = importlib.import_module(f"fgcli.kernels.{modname}")
     old_mod = importlib.import_module(f"fgcli_ab.kernels.{modname}")
     new_fn, old_fn = getattr(new_mod, kname), getattr(old_mod, kname)
-    seq = frames(args.size)
+    seq = frames(args.size, args.input)
     captured = []
 
     def rec(*a, **kw):
@@ -190,6 +202,8 @@ def main():
     p.add_argument("--pipelines", default="fsr3-interp,mob-fgsr,gffe-extrap")
     p.add_argument("--repeat", type=int, default=9)
     p.add_argument("--size", default="1920x1080")
+    p.add_argument("--input", default=None, metavar="FOLDER",
+                   help="frames from this EXR sequence instead of the blade scene")
     p.set_defaults(fn=profile)
     p = sub.add_parser("ab", help="one kernel, this checkout against REV, on captured input")
     p.add_argument("kernel", help="MODULE.KERNEL of fgcli.kernels, e.g. fill.gap_fill_kernel")
@@ -199,6 +213,8 @@ def main():
     p.add_argument("--call", type=int, default=1)
     p.add_argument("--repeat", type=int, default=30)
     p.add_argument("--size", default="1920x1080")
+    p.add_argument("--input", default=None, metavar="FOLDER",
+                   help="frames from this EXR sequence instead of the blade scene")
     p.set_defaults(fn=ab)
     args = ap.parse_args()
     args.fn(args)
