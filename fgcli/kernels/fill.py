@@ -15,6 +15,11 @@ I32 = np.int32
 DY9 = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1], dtype=np.int64)
 DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
 
+# eight uint8 flags read as one word (a row's first w // 8 * 8 bytes viewed as uint64): the
+# in-place gap fill's sparse loops skip a word with nothing to do in one test
+ALL1 = np.uint64(0x0101010101010101)  # eight valid flags
+NONE8 = np.uint64(0xFFFFFFFFFFFFFFFF)  # eight codes -1 (no candidate)
+
 
 @njit(**INLINE)
 def _row_px(valid, depth, rr, x, rin):
@@ -211,9 +216,13 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
     none), filled / holes, and whether the row's depth is already clean (sanitised, +inf
     at holes: as the splat writes it); (2) the chosen neighbours' pre-fill values,
     packed per row after a prefix sum of the rows' counts; (3) the writes: clean depth
-    where it was not, the fallback at holes, then the filled pixels."""
+    where it was not, the fallback at holes, then the filled pixels. The sparse loops (the
+    filled pixels, the holes: ~2 % and ~4 % of the pixels with a moving camera) test eight
+    pixels' flags as one 64-bit word and skip the words with none, instead of a branch per
+    pixel (1080p, Zen 3: 5.5 -> 4.0 ms on blade, 9.3 -> 8.4 on orbit)."""
     h, w = depth.shape
     nch = min(h, 64)
+    n8 = w // 8
     code = np.empty((h, w), dtype=np.int8)
     nrow = np.zeros(h + 1, dtype=np.int64)  # filled pixels per row (row y at y + 1)
     fix = np.zeros(h, dtype=np.uint8)  # rows whose depth needs cleaning
@@ -223,6 +232,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
         D = np.empty((3, w + 2), dtype=np.float32)
         V = np.empty((3, w + 2), dtype=np.uint8)
         fill = np.empty(w, dtype=np.uint8)
+        fw = fill[:n8 * 8].view(np.uint64)
         for r in range(ya - 1, yb + 1):
             sl = (r + 3) % 3
             D[sl, 0] = INF
@@ -250,12 +260,15 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
             for x in range(w):
                 code[y, x] = np.int8(-1)
             nf = 0
-            for x in range(w):
-                if fill[x] == 0:
+            for b in range(n8 + 1):  # (the last "word": the row's w % 8 pixels)
+                if b < n8 and fw[b] == np.uint64(0):
                     continue
-                best = _nearest_candidate(D, V, sa, sb, sc, x, f1)
-                code[y, x] = np.int8(best)
-                nf += 1
+                for x in range(8 * b, min(8 * b + 8, w)):
+                    if fill[x] == 0:
+                        continue
+                    best = _nearest_candidate(D, V, sa, sb, sc, x, f1)
+                    code[y, x] = np.int8(best)
+                    nf += 1
             nrow[y + 1] = nf
             for x in range(w):
                 o_filled[y, x] = fill[x] != 0
@@ -270,66 +283,69 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
         i = nrow[y]
         if nrow[y + 1] == i:
             continue
-        for x in range(w):
-            k = code[y, x]
-            if k < 0:
+        cw = code[y, :n8 * 8].view(np.uint64)
+        for b in range(n8 + 1):
+            if b < n8 and cw[b] == NONE8:
                 continue
-            sy = y + DY9[k]
-            sx = x + DX9[k]
-            cv[0, i] = to1[0, sy, sx]
-            cv[1, i] = to1[1, sy, sx]
-            if has0:
-                cv[2, i] = to0[0, sy, sx]
-                cv[3, i] = to0[1, sy, sx]
-            cv[4, i] = sdepth_b(depth[sy, sx])  # (a candidate is valid)
-            cs[i] = source[sy, sx]
-            i += 1
+            for x in range(8 * b, min(8 * b + 8, w)):
+                k = code[y, x]
+                if k < 0:
+                    continue
+                sy = y + DY9[k]
+                sx = x + DX9[k]
+                cv[0, i] = to1[0, sy, sx]
+                cv[1, i] = to1[1, sy, sx]
+                if has0:
+                    cv[2, i] = to0[0, sy, sx]
+                    cv[3, i] = to0[1, sy, sx]
+                cv[4, i] = sdepth_b(depth[sy, sx])  # (a candidate is valid)
+                cs[i] = source[sy, sx]
+                i += 1
     for py in prange(h):
         y = np.int64(py)
-        hx = np.empty(w, dtype=np.int32)
         if fix[y] != 0:
             for x in range(w):
                 depth[y, x] = sdepth_b(depth[y, x]) if valid[y, x] != 0 else INF
         if has_fb:  # every hole (filled ones are overwritten next, as the reference)
-            # the row's holes listed first (rows without one skipped after a vectorised
-            # test), then taken one by one: a loop over the row with the hole test
-            # inside was vectorised into masked loads and stores at every pixel, whose
-            # stalls cost ~4 ms per 1080p frame (holes: ~1 % of the pixels)
+            # eight pixels' flags per test, a word without a hole skipped (a loop over
+            # the row with the hole test inside was vectorised into masked loads and
+            # stores at every pixel, whose stalls cost ~4 ms per 1080p frame)
             vr = valid[y]
-            m = np.uint8(1)
-            for x in range(w):
-                m = min(m, vr[x])
-            nh = 0
-            if m == 0:
-                for x in range(w):
-                    hx[nh] = np.int32(x)
-                    nh += np.int32(vr[x] == 0)
-            for j in range(nh):
-                x = np.int64(hx[j])
-                mx = smv_b(fb[0, y, x])
-                my = smv_b(fb[1, y, x])
-                to1[0, y, x] = mx * c1
-                to1[1, y, x] = my * c1
-                if has0:
-                    to0[0, y, x] = mx * c0
-                    to0[1, y, x] = my * c0
-                if has_fbd:
-                    depth[y, x] = sdepth_b(fbd[y, x])
+            vw = valid[y, :n8 * 8].view(np.uint64)
+            for b in range(n8 + 1):
+                if b < n8 and vw[b] == ALL1:
+                    continue
+                for x in range(8 * b, min(8 * b + 8, w)):
+                    if vr[x] != 0:
+                        continue
+                    mx = smv_b(fb[0, y, x])
+                    my = smv_b(fb[1, y, x])
+                    to1[0, y, x] = mx * c1
+                    to1[1, y, x] = my * c1
+                    if has0:
+                        to0[0, y, x] = mx * c0
+                        to0[1, y, x] = my * c0
+                    if has_fbd:
+                        depth[y, x] = sdepth_b(fbd[y, x])
         i = nrow[y]
         if nrow[y + 1] == i:
             continue
-        for x in range(w):
-            if code[y, x] < 0:
+        cw = code[y, :n8 * 8].view(np.uint64)
+        for b in range(n8 + 1):
+            if b < n8 and cw[b] == NONE8:
                 continue
-            to1[0, y, x] = cv[0, i]
-            to1[1, y, x] = cv[1, i]
-            if has0:
-                to0[0, y, x] = cv[2, i]
-                to0[1, y, x] = cv[3, i]
-            depth[y, x] = cv[4, i]
-            source[y, x] = cs[i]
-            valid[y, x] = np.uint8(1)
-            i += 1
+            for x in range(8 * b, min(8 * b + 8, w)):
+                if code[y, x] < 0:
+                    continue
+                to1[0, y, x] = cv[0, i]
+                to1[1, y, x] = cv[1, i]
+                if has0:
+                    to0[0, y, x] = cv[2, i]
+                    to0[1, y, x] = cv[3, i]
+                depth[y, x] = cv[4, i]
+                source[y, x] = cs[i]
+                valid[y, x] = np.uint8(1)
+                i += 1
 
 
 @njit(**KERNEL)
