@@ -221,6 +221,74 @@ def test_static_scene_moving_camera_extrapolates_exactly_where_geometry_is_visib
     assert torch.allclose(out["depth"][:, :, :W - 2], torch.full((1, H, W - 2), D), rtol=1e-5)
 
 
+def test_a_still_camera_keeps_the_positions_at_their_origin_on_their_pixels():
+    """origin: a position equal to its pixel's P_0 under frame 1's camera stays on its
+    pixel exactly (zero vector, frame 1's colour as it is), where the projection's float32
+    round trip alone moves it by rounding; a moved position still moves."""
+    g = torch.Generator().manual_seed(5)
+    cam = cam_at(0.3, 0.2, 1.0)  # (off the origin: the round trip rounds)
+    # a sloped surface (random depths would be cracks to the gap fill), sky, and a near
+    # block that moves 3 px right, in front of where it lands
+    ys, xs = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    depth = (4.0 + 0.37 * xs + 0.21 * ys).float()[None]
+    depth[0, :2] = math.inf  # sky: a direction, at rest too
+    depth[0, 10:14, 5:9] = 1.0
+    color = torch.rand(3, H, W, generator=g)
+    X = unproject(depth, cam)
+    cx = extrapolate_camera(cam, cam, 0.5)  # a still camera: frame 1's matrices
+    moved = X.clone()
+    px, py, _, _ = project(X, cam, (H, W))
+    moved[:, 10:14, 5:9] = unproject(depth, cam, px + 3.0, py)[:, 10:14, 5:9]
+    for filt in ("bilinear", "nearest"):
+        out = warp_positions(color, moved, cx, filt, origin=X)
+        rest = torch.ones(H, W, dtype=torch.bool)
+        rest[8:16, 4:14] = False  # the moved block, where it lands, the cracks filled
+        assert (out["mv"][:, rest] == 0).all()
+        assert torch.equal(out["color"][:, rest], color[:, rest])
+        assert torch.equal(out["valid"][0, rest], torch.ones_like(rest[rest]))
+        # the moved block: 3 px right, its vectors back toward frame 1
+        assert torch.allclose(out["mv"][0, 10:14, 8:12], torch.full((4, 4), -3.0), atol=1e-3)
+        assert torch.allclose(out["color"][:, 10:14, 8:12], color[:, 10:14, 5:9], atol=2e-3)
+    # without the origin the round trip's rounding moves pixels off their centres
+    free = warp_positions(color, X, cx, "bilinear")
+    assert (free["mv"] != 0).any()
+    with pytest.raises(ValueError, match="origin"):
+        warp_positions(color, X, cx, origin=X[:, :-1])
+
+
+def test_a_still_camera_leaves_the_static_pixels_of_the_extrapolation_exact():
+    """The pipeline passes the warp frame 1's P_0 as the origin when the camera did not
+    move: every static pixel away from the moving block keeps frame 1's colour and a zero
+    vector, on the torch and numba backends alike."""
+    g = torch.Generator().manual_seed(6)
+    depth = 2.0 + 30.0 * torch.rand(1, H, W, generator=g)
+    frames = []
+    for n in range(3):
+        color = torch.rand(3, H, W, generator=torch.Generator().manual_seed(9))
+        d = depth.clone()
+        mv = torch.zeros(2, H, W)
+        x0 = 4 + 2 * n  # a near block moving 2 px per frame
+        color[:, 8:12, x0:x0 + 4] = 0.9
+        d[0, 8:12, x0:x0 + 4] = 1.0
+        mv[0, 8:12, x0:x0 + 4] = -2.0
+        frames.append(Frame(number=n, color=color, depth=d, mv=mv, camera=cam_at(0.5)))
+    got = {}
+    for backend in ("torch", "numba"):
+        stages = pl.load("gffe-extrap").build("extrap")
+        state = RunState()
+        for i, f1 in enumerate(frames):
+            ctx = make_ctx(frames[i - 1] if i else None, f1, 0.5, "extrap")
+            ctx.update(state=state, prev_time=0.0, backend=backend)
+            out = pl.run_stages(stages, ctx)
+        got[backend] = out
+        far = torch.ones(H, W, dtype=torch.bool)
+        far[5:15, :] = False  # the block's rows, its rim and its contact with the background
+        assert (out["mv"][:, far] == 0).all()
+        assert torch.equal(out["color"][:, far], frames[-1].color[:, far])
+    for k in ("color", "depth", "mv"):
+        assert torch.equal(got["torch"][k], got["numba"][k]), k
+
+
 def test_nearest_depth_wins_in_the_warp():
     cam = cam_at(0.0)
     d = torch.full((1, H, W), D)

@@ -429,6 +429,11 @@ def test_fused_gffe_ops_match_the_reference(h, w):
     for pos in (G.estimate_positions(traj, 0.5), G.unproject(f["dh"], f["cam1"])):
         cases.append(("warp_positions", (f["c1"], pos, f["cam_x"])))
         cases.append(("warp_positions", (f["ch"], pos, f["cam_x"], "bilinear", False)))
+        # positions at their origin (P_0: the static pixels, sky, NaN / zero depths) keep
+        # their pixels, the rest move (a still camera, and a moving one)
+        for cam in (f["cam1"], f["cam_x"]):
+            cases.append(("warp_positions", (f["ch"], pos, cam, "bilinear", True, None,
+                                             traj[0])))
     for sc in (1, 2):
         prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"], layer1_scale=sc)
         layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"],

@@ -175,24 +175,37 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
 
 # ----------------------------------------------------------------------------- warp
 
+@njit(**INLINE)
+def _offset_px(X, V, P, hw, hh, out, dn, x, y, yh, rest):
+    """offsets_kernel at pixel x of row y; rest: the position is at its origin."""
+    qx, qy, d, o = _project_px(X[0, y, x], X[1, y, x], X[2, y, x], X[3, y, x], V, P, hw, hh)
+    dx = ZERO if rest else qx - (F32(I32(x)) + HALF)
+    dy = ZERO if rest else qy - yh
+    out[0, y, x] = -(dx if o else OFF)
+    out[1, y, x] = -(dy if o else OFF)
+    dn[0, y, x] = d
+
+
 @njit(**KERNEL)
-def offsets_kernel(X, V, P, hw, hh, out, dn):
+def offsets_kernel(X, V, P, hw, hh, out, dn, O, has_o):
     """warp_positions' projection and splat vectors in one pass: project_kernel's (px, py,
     depth, ok) of the positions X (4, h, w) (V, P, hw, hh its coefficients), then out =
     -stack([where(ok, px - xh, OFF), where(ok, py - yh, OFF)]) and dn = the depth (the
-    projected coordinates and flags never written: ~2 ms per 1080p frame)."""
+    projected coordinates and flags never written: ~2 ms per 1080p frame). has_o: where
+    X equals the origin O (4, h, w) in all four planes, px - xh and py - yh are zero
+    (else O is not read: a stand-in of X's shape)."""
     h, w = X.shape[1], X.shape[2]
     for pr in prange(h):
         y = np.int64(pr)
         yh = F32(y) + HALF
-        for x in range(w):
-            qx, qy, d, o = _project_px(X[0, y, x], X[1, y, x], X[2, y, x], X[3, y, x], V, P,
-                                       hw, hh)
-            dx = qx - (F32(I32(x)) + HALF)
-            dy = qy - yh
-            out[0, y, x] = -(dx if o else OFF)
-            out[1, y, x] = -(dy if o else OFF)
-            dn[0, y, x] = d
+        if has_o:  # (two loops: loads under a runtime flag can keep a loop scalar, _eq1_row)
+            for x in range(w):
+                rest = ((X[0, y, x] == O[0, y, x]) & (X[1, y, x] == O[1, y, x]) &
+                        (X[2, y, x] == O[2, y, x]) & (X[3, y, x] == O[3, y, x]))
+                _offset_px(X, V, P, hw, hh, out, dn, x, y, yh, rest)
+        else:
+            for x in range(w):
+                _offset_px(X, V, P, hw, hh, out, dn, x, y, yh, False)
 
 
 # ----------------------------------------------------------------------------- dilation

@@ -1826,20 +1826,26 @@ def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place
     return out, fout
 
 
-def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True, geom=None):
-    """fgcli.ops.gffe.warp_positions: the projection and the splat vectors in one kernel,
-    splat_motion and gap_fill (their kernels), the bilinear read and the masking in one
-    kernel."""
+def warp_positions(color1, positions, cam_x, filter="bilinear", crack_fill=True, geom=None,
+                   origin=None):
+    """fgcli.ops.gffe.warp_positions: the projection and the splat vectors in one kernel
+    (with the origin test), splat_motion and gap_fill (their kernels), the bilinear read and
+    the masking in one kernel."""
     if filter != "bilinear" or not (_f32cpu(color1) and color1.shape[0] == 3
                                     and _f32cpu(positions) and positions.shape[0] == 4
-                                    and positions.shape[1:] == color1.shape[1:]):
-        return G.warp_positions(color1, positions, cam_x, filter, crack_fill, geom=GEOM)
+                                    and positions.shape[1:] == color1.shape[1:]
+                                    and (origin is None or (_f32cpu(origin) and
+                                                            origin.shape == positions.shape))):
+        return G.warp_positions(color1, positions, cam_x, filter, crack_fill, geom=GEOM,
+                                origin=origin)
     from fgcli.kernels.gffe import offsets_kernel
 
     h, w = color1.shape[-2:]
     disp, dn = _empty(2, h, w), _empty(1, h, w)
     V, P, hw, hh = _project_coefs(cam_x, (h, w))
-    offsets_kernel(_a(positions), V, P, hw, hh, disp.numpy(), dn.numpy())
+    X = _a(positions)
+    offsets_kernel(X, V, P, hw, hh, disp.numpy(), dn.numpy(),
+                   X if origin is None else _a(origin), origin is not None)
     res = splat_motion(dn, disp, None, 1.0, model="linear", mode="extrap")
     if crack_fill:
         res = gap_fill(res, 0.01, "nearest", in_place=True)  # (res: this call's own scratch)

@@ -19,7 +19,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 import torch
 
-from fgcli.ops._util import (MV_MAX, aux, check_alpha, check_choice, check_tensor,
+from fgcli.ops._util import (MV_MAX, aux, check_alpha, check_choice, check_same, check_tensor,
                              gather_pixels, reads_back, sanitize_values)
 from fgcli.ops.splat import I64_MAX, _pack_key, splat_motion
 from fgcli.ops.warp import backward_warp
@@ -500,7 +500,8 @@ def _splat_min(tx: torch.Tensor, ty: torch.Tensor, key_depth: torch.Tensor, use:
 
 
 def warp_positions(color1: torch.Tensor, positions: torch.Tensor, cam_x, filter: str = "bilinear",
-                   crack_fill: bool = True, geom: Geometry | None = None):
+                   crack_fill: bool = True, geom: Geometry | None = None,
+                   origin: torch.Tensor | None = None):
     """Forward warp of frame 1's fragments to their estimated positions seen by the
     extrapolated camera; nearest depth wins (fgcli.ops.splat.splat_motion's packed keys).
 
@@ -513,6 +514,11 @@ def warp_positions(color1: torch.Tensor, positions: torch.Tensor, cam_x, filter:
         crack_fill: fill one-pixel splat cracks inside nearer surfaces with Mob-FGSR's
             2x2-block rule (fgcli.ops.fill.gap_fill; an fgen addition: the paper leaves these
             "thin black lines" of forward warping to later stages).
+        origin: (4, H, W) the points that cam_x sees at the pixel centres (frame 1's
+            unprojected depth P_0 when cam_x is frame 1's camera, a still camera), or None.
+            A position equal to its pixel's origin stays on its pixel exactly: its splat
+            vector is zero (float32's projection of the unprojection would move it by
+            ~1e-5 px, and the bilinear read would mix in its neighbours by as much).
 
     Returns dict: color (3, H, W) (0 in holes), depth (1, H, W) view depth in the new view
     (+inf holes and sky), mv (2, H, W) toward frame 1 (0 in holes), valid (1, H, W) bool.
@@ -522,8 +528,15 @@ def warp_positions(color1: torch.Tensor, positions: torch.Tensor, cam_x, filter:
     h, w = color1.shape[-2:]
     px, py, dn, ok = (geom or TORCH_GEOM).project(positions, cam_x, (h, w))
     a = aux(h, w, color1.device)
-    dx = torch.where(ok, px - a["xh"], torch.full_like(px, OFF))
-    dy = torch.where(ok, py - a["yh"], torch.full_like(py, OFF))
+    dx, dy = px - a["xh"], py - a["yh"]
+    if origin is not None:  # (the positions at their origin: on their pixels)
+        origin = check_tensor(origin, "origin", 4, allow_batch=False)
+        check_same(positions, "positions", (origin, "origin"))
+        rest = (positions == origin).all(0)
+        dx = torch.where(rest, torch.zeros_like(dx), dx)
+        dy = torch.where(rest, torch.zeros_like(dy), dy)
+    dx = torch.where(ok, dx, torch.full_like(px, OFF))
+    dy = torch.where(ok, dy, torch.full_like(py, OFF))
     # splat_motion (linear, extrap, alpha 1) moves each source by exactly -mv1
     res = splat_motion(dn[None], -torch.stack([dx, dy]), None, 1.0, model="linear",
                        mode="extrap")

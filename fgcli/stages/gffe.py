@@ -43,6 +43,20 @@ def torch_equal(a, b) -> bool:
     return bool(torch.equal(a, b))
 
 
+def _still(ctx) -> bool:
+    """The extrapolated camera is frame 1's (both matrices equal: a camera that did not
+    move, fgcli.ops.gffe.extrapolate_camera)."""
+    import numpy as np
+
+    from fgcli.ops.gffe import _mats
+
+    c1 = ctx.get("camera1")
+    if c1 is None:
+        return False
+    (vx, px), (v1, p1) = _mats(ctx["camera_x"]), _mats(c1)
+    return bool(np.array_equal(vx, v1) and np.array_equal(px, p1))
+
+
 def _static_frame(ctx, facts) -> bool:
     """Static camera and no motion vectors: every pixel passes the static test."""
     return (not facts.get("camera_moved", False)) and not facts.get("any_motion", True)
@@ -255,7 +269,7 @@ class GffeWarp(Stage):
             "nearest depth wins (packed-key splat shared with mob-fgsr); color, depth and MVs "
             "of the extrapolated frame, holes marked.")
     inputs = ("color1", "depth1", "camera_x")
-    optional_inputs = ("positions", "camera1")
+    optional_inputs = ("positions", "camera1", "traj")
     outputs = ("color", "depth", "mv", "valid")
     options = (Option("filter", "choice", "bilinear", "bilinear: sample frame 1 at the "
                       "winner's sub-pixel source (fgen); nearest: the winner's own color "
@@ -281,10 +295,18 @@ class GffeWarp(Stage):
 
     def run(self, ctx):
         pos = ctx.get("positions")
+        origin = None
         if pos is None:
             pos = op("unproject", ctx)(ctx["depth1"], ctx["camera1"])
+        elif (ctx.get("traj") is not None and ctx["traj"].shape[1:] == pos.shape
+              and _still(ctx)):
+            # a still camera sees P_0 (frame 1's unprojected depth) at the pixel centres:
+            # a position that is its pixel's P_0 (a static pixel) stays on its pixel
+            # exactly, instead of moving by the projection's float32 rounding (~1e-5 px,
+            # and a bilinear read that mixes in the neighbours by as much)
+            origin = ctx["traj"][0]
         out = op("warp_positions", ctx)(ctx["color1"], pos, ctx["camera_x"], self.filter,
-                                        self.crack_fill)
+                                        self.crack_fill, origin=origin)
         return {"color": out["color"], "depth": out["depth"], "mv": out["mv"],
                 "valid": out["valid"]}
 
