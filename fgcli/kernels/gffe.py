@@ -811,19 +811,15 @@ BIG30 = np.float32(1e30)
 TINY30 = np.float32(1e-30)
 
 
-@njit(**KERNEL)
-def pp_prep_kernel(depth, valid, xd, wv, wdv):
-    """Level 0's depth plane where(isfinite & > 0, depth, 0), w = valid, wd = valid & that."""
-    h, w = depth.shape
-    for pr in prange(h):
-        y = np.int64(pr)
-        for x in range(w):
-            d = depth[y, x]
-            fin = (d > ZERO) & (d < INF)
-            v = valid[y, x] != U0
-            xd[y, x] = d if fin else ZERO
-            wv[y, x] = ONE if v else ZERO
-            wdv[y, x] = ONE if (v & fin) else ZERO
+@njit(**INLINE)
+def _pp_level0(depth, valid, y, x):
+    """Level 0 of the pyramid at pixel (y, x), made where it is read: (the depth where
+    finite and positive else 0, the weight: 1 where valid, the depth weight: 1 where valid
+    with such a depth)."""
+    d = depth[y, x]
+    fin = (d > ZERO) & (d < INF)
+    v = valid[y, x] != U0
+    return (d if fin else ZERO), (ONE if v else ZERO), (ONE if (v & fin) else ZERO)
 
 
 @njit(**INLINE)
@@ -831,18 +827,28 @@ def _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, xa, xb, 
                 md):
     """pp_down_kernel at output pixel (oy, ox) from the 2x2 block of rows ya, yb and
     columns xa, xb (mb, mc, md: whether cells b, c, d exist, cnt their count with a)."""
-    wa = wv[ya, xa]
-    wb = wv[ya, xb]
-    wc = wv[yb, xa]
-    wd_ = wv[yb, xb]
-    va = wdv[ya, xa]
-    vb = wdv[ya, xb]
-    vc = wdv[yb, xa]
-    vd = wdv[yb, xb]
-    da = xd[ya, xa]
-    db = xd[ya, xb]
-    dc = xd[yb, xa]
-    dd_ = xd[yb, xb]
+    _pp_down_cells(xc, xd[ya, xa], xd[ya, xb], xd[yb, xa], xd[yb, xb], wv[ya, xa], wv[ya, xb],
+                   wv[yb, xa], wv[yb, xb], wdv[ya, xa], wdv[ya, xb], wdv[yb, xa], wdv[yb, xb],
+                   fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, xa, xb, cnt, mb, mc, md)
+
+
+@njit(**INLINE)
+def _pp_down0_px(color, depth, valid, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, xa, xb, cnt, mb,
+                 mc, md):
+    """_pp_down_px on level 0, its planes made from depth and valid as they are read."""
+    da, wa, va = _pp_level0(depth, valid, ya, xa)
+    db, wb, vb = _pp_level0(depth, valid, ya, xb)
+    dc, wc, vc = _pp_level0(depth, valid, yb, xa)
+    dd_, wd_, vd = _pp_level0(depth, valid, yb, xb)
+    _pp_down_cells(color, da, db, dc, dd_, wa, wb, wc, wd_, va, vb, vc, vd, fb, nxc, nxd, nw,
+                   nwd, oy, ox, ya, yb, xa, xb, cnt, mb, mc, md)
+
+
+@njit(**INLINE)
+def _pp_down_cells(xc, da, db, dc, dd_, wa, wb, wc, wd_, va, vb, vc, vd, fb, nxc, nxd, nw, nwd,
+                   oy, ox, ya, yb, xa, xb, cnt, mb, mc, md):
+    """_pp_down_px with the block's depths (da .. dd_), weights (wa .. wd_) and depth
+    weights (va .. vd) read."""
     ea = ((da if va > ZERO else BIG30) if wa > ZERO else ZERO)
     eb = ((db if vb > ZERO else BIG30) if wb > ZERO else ZERO)
     ec = ((dc if vc > ZERO else BIG30) if wc > ZERO else ZERO)
@@ -901,13 +907,44 @@ def pp_down_kernel(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd):
         ya = 2 * oy
         r1 = ya + 1 < h
         yb = ya + 1 if r1 else ya
-        cnt2 = F32(2 if r1 else 1) * F32(2)
-        for ox in range(wp):
-            _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, 2 * ox,
-                        2 * ox + 1, cnt2, True, r1, r1)
+        if r1:  # (versioned: with the flag a runtime value the loop stayed scalar)
+            for ox in range(wp):
+                _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, ya + 1, 2 * ox,
+                            2 * ox + 1, F32(4.0), True, True, True)
+        else:  # (an odd height's last row)
+            for ox in range(wp):
+                _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, ya, 2 * ox,
+                            2 * ox + 1, F32(2.0), True, False, False)
         for ox in range(wp, w2):  # an odd width's last block: one column
             _pp_down_px(xc, xd, wv, wdv, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, 2 * ox,
                         2 * ox, F32(2 if r1 else 1), False, r1, False)
+
+
+@njit(**KERNEL)
+def pp_down0_kernel(color, depth, valid, fb, nxc, nxd, nw, nwd):
+    """pp_down_kernel from level 0 (colour, depth (h, w) float32, valid (h, w) uint8), its
+    depth and weight planes made as the blocks read them (_pp_level0): the same values,
+    without three frame-sized planes written and read back (pp_final_kernel needs none of
+    them)."""
+    h, w = depth.shape
+    h2, w2 = nxd.shape
+    wp = w // 2
+    for pr in prange(h2):
+        oy = np.int64(pr)
+        ya = 2 * oy
+        r1 = ya + 1 < h
+        yb = ya + 1 if r1 else ya
+        if r1:  # (versioned as in pp_down_kernel)
+            for ox in range(wp):
+                _pp_down0_px(color, depth, valid, fb, nxc, nxd, nw, nwd, oy, ox, ya, ya + 1,
+                             2 * ox, 2 * ox + 1, F32(4.0), True, True, True)
+        else:
+            for ox in range(wp):
+                _pp_down0_px(color, depth, valid, fb, nxc, nxd, nw, nwd, oy, ox, ya, ya, 2 * ox,
+                             2 * ox + 1, F32(2.0), True, False, False)
+        for ox in range(wp, w2):
+            _pp_down0_px(color, depth, valid, fb, nxc, nxd, nw, nwd, oy, ox, ya, yb, 2 * ox,
+                         2 * ox, F32(2 if r1 else 1), False, r1, False)
 
 
 @njit(**INLINE)
@@ -940,9 +977,11 @@ def pp_up_kernel(xc, xd, wv, wdv, fxc, fxd, fw, fwd, oxc, oxd, ow, owd):
 
 
 @njit(**KERNEL)
-def pp_final_kernel(color, depth, valid, xd, wdv, fxc, fxd, fwd, out_c, out_d):
-    """Level 0 up, and the outputs: valid pixels keep (sanitised) colour and raw depth."""
-    h, w = xd.shape
+def pp_final_kernel(color, depth, valid, fxc, fxd, fwd, out_c, out_d):
+    """Level 0 up, and the outputs: valid pixels keep (sanitised) colour and raw depth,
+    the others take level 1's (its depth where its depth weight is set, else +inf; level
+    0's own depth and weight, zero at an invalid pixel, are never taken there)."""
+    h, w = depth.shape
     for pr in prange(h):
         y = np.int64(pr)
         yy = y >> 1
@@ -951,10 +990,7 @@ def pp_final_kernel(color, depth, valid, xd, wdv, fxc, fxd, fwd, out_c, out_d):
             v = valid[y, x] != U0
             for k in range(3):
                 out_c[k, y, x] = sval_b(color[k, y, x]) if v else fxc[k, yy, xx]
-            ad = wdv[y, x]
-            nd = xd[y, x] if ad > ZERO else fxd[yy, xx]
-            fw_ = max(ad, fwd[yy, xx])
-            dd = nd if fw_ > ZERO else INF
+            dd = fxd[yy, xx] if fwd[yy, xx] > ZERO else INF
             out_d[y, x] = depth[y, x] if v else dd
 
 
@@ -1021,7 +1057,7 @@ def _pp_tiles_band(ty, color, depth, valid, fb, K, holes, out_c, out_d, inplace,
         x0 = tx * T
         th = y1 - y0
         tw = min(w, x0 + T) - x0
-        for y in range(th):  # level 0 of the tile: pp_prep_kernel's planes
+        for y in range(th):  # level 0 of the tile: _pp_level0's planes
             for x in range(tw):
                 for k in range(3):
                     c0[k, y, x] = color[k, y0 + y, x0 + x]

@@ -886,7 +886,7 @@ def _warm_kernels(families=None) -> tuple:
                     geom.reproject_kernel, geom.reproject_sky_kernel)
         kernels += (gffe.sample_where_kernel, gffe.offsets_kernel, gffe.dilate_traj_kernel,
                     gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
-                    gffe.pp_prep_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
+                    gffe.pp_down0_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
                     gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_p_kernel,
                     gffe.hist_match_kernel, gffe.hist_taps_kernel, gffe.hist_sel_kernel,
@@ -2210,7 +2210,7 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_
           and _boolcpu(valid, depth.shape) and float(far_bias) >= 0)
     if not ok:
         return G.push_pull_fill(color, valid, depth, far_bias)
-    from fgcli.kernels.gffe import (pp_down_kernel, pp_final_kernel, pp_prep_kernel,
+    from fgcli.kernels.gffe import (pp_down0_kernel, pp_down_kernel, pp_final_kernel,
                                     pp_tile_scan_kernel, pp_tiles_kernel, pp_up_kernel)
 
     h, w = color.shape[-2:]
@@ -2228,17 +2228,18 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_
             pp_tiles_kernel(col, dep, val, fb, int(tile_k), holes, out_c.numpy(),
                             out_d.numpy()[0], inp)
             return out_c, out_d
-    xd0, w0, wd0 = (np.empty((h, w), dtype=np.float32) for _ in range(3))
-    pp_prep_kernel(dep, val, xd0, w0, wd0)
-    levels = [(col, xd0, w0, wd0)]
+    levels = []  # levels 1, 2, ... (level 0's planes are made as pp_down0_kernel reads)
     while h > 1 or w > 1:
         h, w = (h + 1) // 2, (w + 1) // 2
         nxt = (np.empty((3, h, w), dtype=np.float32),) + tuple(
             np.empty((h, w), dtype=np.float32) for _ in range(3))
-        pp_down_kernel(*levels[-1], fb, *nxt)
+        if levels:
+            pp_down_kernel(*levels[-1], fb, *nxt)
+        else:
+            pp_down0_kernel(col, dep, val, fb, *nxt)
         levels.append(nxt)
     filled = levels[-1]
-    for lv in reversed(levels[1:-1]):
+    for lv in reversed(levels[:-1]):
         hh, ww = lv[1].shape
         out = (np.empty((3, hh, ww), dtype=np.float32),) + tuple(
             np.empty((hh, ww), dtype=np.float32) for _ in range(3))
@@ -2246,7 +2247,7 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_
         filled = out
     H, W = color.shape[-2:]
     out_c, out_d = _empty(3, H, W), _empty(1, H, W)
-    pp_final_kernel(col, dep, val, xd0, wd0, filled[0], filled[1], filled[3], out_c.numpy(),
+    pp_final_kernel(col, dep, val, filled[0], filled[1], filled[3], out_c.numpy(),
                     out_d.numpy()[0])
     return out_c, out_d
 
