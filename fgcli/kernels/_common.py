@@ -150,6 +150,13 @@ ROWS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=Fa
             pipeline_class=RowsCompiler)
 
 
+# eight uint8 flags read as one word (a row's first w // 8 * 8 bytes viewed as uint64): the
+# sparse loops (the gap fill's, the vector rule's) skip a word with nothing to do in one
+# test instead of a branch per pixel
+ALL1 = np.uint64(0x0101010101010101)  # eight flags 1 (valid)
+NONE8 = np.uint64(0xFFFFFFFFFFFFFFFF)  # eight int8 codes -1 (none)
+
+
 @njit(**INLINE)
 def sval(v):
     """sanitize_values: NaN -> 0, +-inf -> +-1e30."""

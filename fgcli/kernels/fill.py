@@ -6,19 +6,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, INF, INLINE, KERNEL, bits, clamp_b, f2i64, sdepth_b,
-                                   smv_b)
+from fgcli.kernels._common import (ALL1, F32, INF, INLINE, KERNEL, NONE8, bits, clamp_b, f2i64,
+                                   sdepth_b, smv_b)
 
 I32 = np.int32
 
 # 3x3 neighbours, row-major, centre included (index 4)
 DY9 = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1], dtype=np.int64)
 DX9 = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1], dtype=np.int64)
-
-# eight uint8 flags read as one word (a row's first w // 8 * 8 bytes viewed as uint64): the
-# in-place gap fill's sparse loops skip a word with nothing to do in one test
-ALL1 = np.uint64(0x0101010101010101)  # eight valid flags
-NONE8 = np.uint64(0xFFFFFFFFFFFFFFFF)  # eight codes -1 (no candidate)
 
 
 @njit(**INLINE)

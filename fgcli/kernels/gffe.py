@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import (F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b, f2i64,
-                                   sdepth_b, sflow_b, smv_b, sval_b)
+from fgcli.kernels._common import (ALL1, F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b,
+                                   f2i64, sdepth_b, sflow_b, smv_b, sval_b)
 from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
@@ -1276,8 +1276,12 @@ def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
     planes: its copies, or scratch) are written where took and nowhere else. flow: the
     vector where took, 0 at the other pixels of a row with a hole; rows without one are
     not written (the sampling reads no flow there: it reads only runs of pixels with one
-    taken). A row's holes first (one vectorised test), then its pixels."""
+    taken). A row's holes first (one vectorised test), then, in a row with one, zeros for
+    every pixel (vectorised) and the rule at its holes alone: eight pixels' valid flags
+    tested as one word, a word without a hole skipped (the rule per pixel over the row,
+    its depth read a scalar gather at every pixel, took 3-5 ms per 1080p frame)."""
     h, w = depth1.shape
+    n8 = w // 8
     lo = F32(-0.5)
     hx = F32(w - 0.5)
     hy = F32(h - 0.5)
@@ -1296,25 +1300,33 @@ def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
                 tr[x] = U0
             continue
         for x in range(w):
-            mx = smv_b(mv1[0, y, x]) * a
-            my = smv_b(mv1[1, y, x]) * a
-            sx = F32(I32(x)) + mx
-            sy = yf + my
-            inside = (sx >= lo) & (sx < hx) & (sy >= lo) & (sy < hy)
-            ix = f2i64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
-            iy = f2i64(clamp_b(np.floor(sy + HALF), ZERO, hm1))
-            ds = sdepth_b(depth1[iy, ix])
-            do = sdepth_b(depth1[y, x])
-            bg = inside & (not (ds < do * keep))
-            hole = vr[x] == U0
-            t = hole & bg & ((mx != ZERO) | (my != ZERO))
-            tr[x] = np.uint8(1) if t else U0
-            flow[0, y, x] = mx if t else ZERO
-            flow[1, y, x] = my if t else ZERO
-            if t:
-                depth[y, x] = ds
-                mv[0, y, x] = mx
-                mv[1, y, x] = my
+            tr[x] = U0
+            flow[0, y, x] = ZERO
+            flow[1, y, x] = ZERO
+        vw = valid[y, :n8 * 8].view(np.uint64)
+        for b in range(n8 + 1):  # (the last "word": the row's w % 8 pixels)
+            if b < n8 and vw[b] == ALL1:
+                continue
+            for x in range(8 * b, min(8 * b + 8, w)):
+                if vr[x] != U0:
+                    continue
+                mx = smv_b(mv1[0, y, x]) * a
+                my = smv_b(mv1[1, y, x]) * a
+                sx = F32(I32(x)) + mx
+                sy = yf + my
+                inside = (sx >= lo) & (sx < hx) & (sy >= lo) & (sy < hy)
+                ix = f2i64(clamp_b(np.floor(sx + HALF), ZERO, wm1))
+                iy = f2i64(clamp_b(np.floor(sy + HALF), ZERO, hm1))
+                ds = sdepth_b(depth1[iy, ix])
+                do = sdepth_b(depth1[y, x])
+                bg = inside & (not (ds < do * keep))
+                if bg & ((mx != ZERO) | (my != ZERO)):
+                    tr[x] = np.uint8(1)
+                    flow[0, y, x] = mx
+                    flow[1, y, x] = my
+                    depth[y, x] = ds
+                    mv[0, y, x] = mx
+                    mv[1, y, x] = my
 
 
 # ----------------------------------------------------------------------------- history
