@@ -62,6 +62,21 @@ def _nearest_candidate(D, V, sa, sb, sc, x, f1):
 
 
 @njit(**INLINE)
+def _fallback_px(fb, fbd, has0, has_fbd, c1, c0, to1, to0, depth, y, x):
+    """The fallback fields at hole (y, x): vectors fb scaled by c1 (and c0 into to0 when
+    has0), the depth fbd when has_fbd."""
+    mx = smv_b(fb[0, y, x])
+    my = smv_b(fb[1, y, x])
+    to1[0, y, x] = mx * c1
+    to1[1, y, x] = my * c1
+    if has0:
+        to0[0, y, x] = mx * c0
+        to0[1, y, x] = my * c0
+    if has_fbd:
+        depth[y, x] = sdepth_b(fbd[y, x])
+
+
+@njit(**INLINE)
 def _extrap_hole(mv1, depth1, x, y, yf, alpha, f1, has0, w, h, wm1, hm1):
     """fill_extrap_holes at hole (x, y): (to1 x, to1 y, depth, to0 x, to0 y), to0 zero
     when not has0."""
@@ -172,15 +187,7 @@ def gap_fill_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, has_fb, h
                 for x in range(w):
                     if valid[y, x]:
                         continue
-                    mx = smv_b(fb[0, y, x])
-                    my = smv_b(fb[1, y, x])
-                    o_to1[0, y, x] = mx * c1
-                    o_to1[1, y, x] = my * c1
-                    if has0:
-                        o_to0[0, y, x] = mx * c0
-                        o_to0[1, y, x] = my * c0
-                    if has_fbd:
-                        o_depth[y, x] = sdepth_b(fbd[y, x])
+                    _fallback_px(fb, fbd, has0, has_fbd, c1, c0, o_to1, o_to0, o_depth, y, x)
             # ... then the few filled ones take their neighbour's (after the fallback, as the
             # reference)
             for i in range(nf):
@@ -313,15 +320,7 @@ def gap_fill_inplace_kernel(to1, to0, has0, depth, valid, source, f1, fb, fbd, h
                 for x in range(8 * b, min(8 * b + 8, w)):
                     if vr[x] != 0:
                         continue
-                    mx = smv_b(fb[0, y, x])
-                    my = smv_b(fb[1, y, x])
-                    to1[0, y, x] = mx * c1
-                    to1[1, y, x] = my * c1
-                    if has0:
-                        to0[0, y, x] = mx * c0
-                        to0[1, y, x] = my * c0
-                    if has_fbd:
-                        depth[y, x] = sdepth_b(fbd[y, x])
+                    _fallback_px(fb, fbd, has0, has_fbd, c1, c0, to1, to0, depth, y, x)
         i = nrow[y]
         if nrow[y + 1] == i:
             continue
