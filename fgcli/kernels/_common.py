@@ -114,6 +114,9 @@ def _stamp_kernel_caches(folder: str = _KERNEL_DIR) -> bool:
 
 KERNEL_CACHE_STAMPED = _stamp_kernel_caches()
 
+# (after the two set-ups above: they must precede any compilation)
+from fgcli.kernels._intrin import HAVE_AVX2, lut16  # noqa: E402
+
 F32 = np.float32
 INF = np.float32(np.inf)
 MV_MAX = np.float32(1.0e6)  # fgcli.ops._util.MV_MAX
@@ -239,6 +242,31 @@ def step_code(v, tab, b0, sh, n1, bottom):
     f = (np.int32(1) << (sh + np.int32(1))) - np.int32(1)
     c = (e >> (sh + np.int32(1))) + np.int32((bits & m) >= (e & f))
     return bottom if below else c
+
+
+@njit(**INLINE)
+def step_codes(B, n, tab, b0, sh, n1, bottom, I, E):
+    """step_code of n values at once (a row): E[x] = the code of the float32 (>= 0) whose
+    bits are B[x] (int32), x < n. The buckets into I (int32 row buffer), then the table's
+    entries by 16-lane AVX2 gathers (lut16; LLVM leaves such a loop's lookups to scalar
+    loads where gathers are slow, as on Zen), then the codes: the same values."""
+    for x in range(n):
+        i = (B[x] >> sh) - b0
+        I[x] = np.int32(0) if i < np.int32(0) else (n1 if i > n1 else i)
+    nb = 0
+    if HAVE_AVX2:
+        nb = n // 16
+        for b in range(nb):
+            lut16(tab, I, np.int32(16 * b), E)
+    for x in range(16 * nb, n):
+        E[x] = tab[I[x]]
+    m = (np.int32(1) << sh) - np.int32(1)
+    f = (np.int32(1) << (sh + np.int32(1))) - np.int32(1)
+    for x in range(n):
+        bits = B[x]
+        e = E[x]
+        c = (e >> (sh + np.int32(1))) + np.int32((bits & m) >= (e & f))
+        E[x] = bottom if ((bits >> sh) - b0) < np.int32(0) else c
 
 
 @njit(**INLINE)

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, dealt, f2i64, sdepth_b,
-                                   smv_b, step_code, sval_b)
+                                   smv_b, step_code, step_codes, sval_b)
 from fgcli.kernels._intrin import (HAVE_WINDOW16, atomic_max_u32, bilinear16x1, fmin16x2,
                                    ld32, mad32, umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
@@ -543,7 +543,7 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
 
 @njit(**ROWS)
 def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB, YA,
-                       YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt):
+                       YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt, B, I, E):
     """entries_prio_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = prio.shape
     fromd = depth.shape[0] > 0
@@ -552,8 +552,12 @@ def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec,
         _row_samples(l0, vec[0, y], vec[1, y], y, gxn, gyn, kx, ky, h, w, s0, ins, XA, XB, YA,
                      YB, Z, WT)
         if fromd:  # the priorities from the depths as they go (no int64 plane)
+            # (_depth_rank a row at a time: the table's lookups by 16-lane gathers)
             for x in range(w):
-                hv = np.int64(_depth_rank(depth[y, x], tab, b0, sh, n1, bottom))
+                B[x] = F32(sdepth_b(depth[y, x])).view(np.int32)
+            step_codes(B, w, tab, b0, sh, n1, bottom, I, E)
+            for x in range(w):
+                hv = np.int64(np.int32(1023) - (E[x] if B[x] > np.int32(0) else np.int32(0)))
                 prio[y, x] = np.uint16(_prio(hv, _agreement(s0[x], _lum(c1, y, x), ins[x])))
         else:
             for x in range(w):
@@ -607,8 +611,11 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
         WT = np.empty((4, w), dtype=np.float32)
         s0 = np.empty(w, dtype=np.float32)
         ins = np.empty(w, dtype=np.float32)
+        B = np.empty(w, dtype=np.int32)  # (the depth ranks' row buffers: step_codes)
+        I = np.empty(w, dtype=np.int32)
+        E = np.empty(w, dtype=np.int32)
         _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, XA, XB,
-                           YA, YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt)
+                           YA, YB, Z, WT, s0, ins, depth, tab, b0, sh, bottom, tw, cnt, B, I, E)
 
 
 @njit(**KERNEL)

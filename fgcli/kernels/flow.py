@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from fgcli.kernels._common import F32, INLINE, KERNEL, step_code
+from fgcli.kernels._common import F32, INLINE, KERNEL, ROWS, step_codes
 from fgcli.kernels._intrin import sad_search8
 from fgcli.kernels.field import _lum
 
@@ -454,47 +454,64 @@ def block_flow_u8_kernel(l0, l1, buf0, buf1, hs, ws, offs, bh, bw, boffs, median
 # ----------------------------------------------------------------------------- luma8
 
 @njit(**INLINE)
-def _luma8_of(v, tab, b0, sh, n1, bottom):
-    """luma8's code of a luminance v: Y = clip(v, 0, 1) (NaN -> 0, +inf -> 1, -inf -> 0,
-    as _clip01; field_luminance's plane, whose NaN -> 0 and +-inf -> +-BIG clip the same
-    way), then luma8_table's lookup (step_code: the packed table of
-    fgcli.kernels.ops.packed_steps, one int32 gather), as int32."""
+def _clip01_bits(v):
+    """The bits (int32) of luma8's Y = clip(v, 0, 1) of a luminance v: NaN -> 0,
+    +inf -> 1, -inf -> 0, as _clip01 (field_luminance's plane, whose NaN -> 0 and
+    +-inf -> +-BIG, clips the same way)."""
     v = F32(0.0) if v != v else v
     v = F32(1.0) if v > F32(1.0) else v
-    v = F32(0.0) if v < F32(0.0) else v
-    return step_code(v, tab, b0, sh, n1, bottom)
+    return F32(F32(0.0) if v < F32(0.0) else v).view(np.int32)
+
+
+@njit(**ROWS)
+def _luma8_rows(ya, yb, color, lum, tab, b0, sh, bottom, out, B, I, E):
+    """Rows ya..yb of luma8's codes (luma8_table's lookup: step_codes, 16 per gather) of
+    the luminance of the sanitised colour (3, H, W), or with lum (H, W) not empty of that
+    plane, into out (H, W) (float32 or uint8). B, I, E: int32 row buffers."""
+    h, w = out.shape
+    n1 = np.int32(tab.shape[0] - 1)
+    plane = lum.shape[0] > 0
+    for y in range(ya, yb):
+        if plane:
+            for x in range(w):
+                B[x] = _clip01_bits(lum[y, x])
+        else:
+            for x in range(w):
+                B[x] = _clip01_bits(_lum(color, y, x))
+        step_codes(B, w, tab, b0, sh, n1, bottom, I, E)
+        for x in range(w):
+            out[y, x] = E[x]
+
+
+@njit(**INLINE)
+def _luma8_chunks(color, lum, tab, b0, sh, bottom, out):
+    """The luma8 kernels' parallel loop: 64 chunks of rows, each with its row buffers."""
+    h, w = out.shape
+    nch = min(h, 64)
+    for ch in prange(nch):
+        ya = np.int64(ch) * h // nch
+        yb = (np.int64(ch) + 1) * h // nch
+        B = np.empty(w, dtype=np.int32)
+        I = np.empty(w, dtype=np.int32)
+        E = np.empty(w, dtype=np.int32)
+        _luma8_rows(ya, yb, color, lum, tab, b0, sh, bottom, out, B, I, E)
 
 
 @njit(**KERNEL)
 def luma8_kernel(color, tab, b0, sh, bottom, out):
-    """fgcli.ops.fsr3.luma8 (_luma8_of of the luminance of the sanitised colour): out
+    """fgcli.ops.fsr3.luma8 (the codes of the luminance of the sanitised colour): out
     (H, W) float32. tab, b0, sh, bottom: packed_steps(luma8_table) (int32)."""
-    h, w = out.shape
-    n1 = np.int32(tab.shape[0] - 1)
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            out[y, x] = F32(_luma8_of(_lum(color, y, x), tab, b0, sh, n1, bottom))
+    _luma8_chunks(color, np.empty((0, 0), dtype=np.float32), tab, b0, sh, bottom, out)
 
 
 @njit(**KERNEL)
 def luma8_u8_plane_kernel(lum, tab, b0, sh, bottom, out):
     """fgcli.ops.fsr3.luma8_u8_of: the bytes of a luminance plane lum (H, W) float32 ->
     out (H, W) uint8."""
-    h, w = out.shape
-    n1 = np.int32(tab.shape[0] - 1)
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            out[y, x] = np.uint8(_luma8_of(lum[y, x], tab, b0, sh, n1, bottom))
+    _luma8_chunks(np.empty((3, 0, 0), dtype=np.float32), lum, tab, b0, sh, bottom, out)
 
 
 @njit(**KERNEL)
 def luma8_u8_kernel(color, tab, b0, sh, bottom, out):
     """fgcli.ops.fsr3.luma8_u8 (luma8_kernel's codes as bytes): out (H, W) uint8."""
-    h, w = out.shape
-    n1 = np.int32(tab.shape[0] - 1)
-    for py in prange(h):
-        y = np.int64(py)
-        for x in range(w):
-            out[y, x] = np.uint8(_luma8_of(_lum(color, y, x), tab, b0, sh, n1, bottom))
+    _luma8_chunks(color, np.empty((0, 0), dtype=np.float32), tab, b0, sh, bottom, out)
