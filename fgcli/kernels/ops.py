@@ -1924,6 +1924,8 @@ def _splat_min(px, py, sc, dn, use, h, w, want=None):
     src, dep = _empty(h, w, dtype=torch.int64), _empty(h, w)
     buf = np.empty(h * w, dtype=np.int64)
     hs, ws = dn.shape[-2:]
+    if want is not None and h * w >= 2 ** 31:  # (the kernel's want test is in int32: the
+        want = None  # rows with want come out the same, the others written as well)
     wa = want.reshape(-1) if want is not None else np.zeros(1, dtype=np.uint8)
     splat_min_kernel(_a(px).reshape(hs, ws), _a(py).reshape(hs, ws), F32(sc),
                      _a(dn).reshape(hs, ws), _u8(use).reshape(hs, ws), h, w, wa,
