@@ -182,14 +182,22 @@ def hole_index_kernel(hout, start, idx):
     nonzero): each pair of rows q writes its own from start[q] (the prefix sums of
     inpaint_prep_kernel's counts)."""
     h, w = hout.shape
+    n8 = w // 8
     for pq in prange(start.shape[0] - 1):
         q = np.int64(pq)
         k = start[q]
+        if start[q + 1] == k:  # no hole in the pair (most pairs of a frame)
+            continue
         for y in range(2 * q, min(2 * q + 2, h)):
-            for x in range(w):
-                if hout[y, x] != U0:
-                    idx[k] = y * w + x
-                    k += 1
+            hr = hout[y]
+            hv = hr[:n8 * 8].view(np.uint64)
+            for b in range(n8 + 1):  # eight flags per test (the last "word": w % 8)
+                if b < n8 and hv[b] == np.uint64(0):
+                    continue
+                for x in range(8 * b, min(8 * b + 8, w)):
+                    if hr[x] != U0:
+                        idx[k] = y * w + x
+                        k += 1
 
 
 @njit(**INLINE)
