@@ -245,14 +245,10 @@ def step_code(v, tab, b0, sh, n1, bottom):
 
 
 @njit(**INLINE)
-def step_codes(B, n, tab, b0, sh, n1, bottom, I, E):
-    """step_code of n values at once (a row): E[x] = the code of the float32 (>= 0) whose
-    bits are B[x] (int32), x < n. The buckets into I (int32 row buffer), then the table's
-    entries by 16-lane AVX2 gathers (lut16; LLVM leaves such a loop's lookups to scalar
-    loads where gathers are slow, as on Zen), then the codes: the same values."""
-    for x in range(n):
-        i = (B[x] >> sh) - b0
-        I[x] = np.int32(0) if i < np.int32(0) else (n1 if i > n1 else i)
+def lut_row(tab, I, n, E):
+    """E[x] = tab[I[x]] for x < n (1-D int32 arrays, 0 <= I < tab.size): 16 per lut16
+    (two AVX2 gathers) where the CPU has AVX2, the rest one by one. (LLVM leaves a loop of
+    table reads to scalar loads where gathers are slow, as on Zen.)"""
     nb = 0
     if HAVE_AVX2:
         nb = n // 16
@@ -260,6 +256,17 @@ def step_codes(B, n, tab, b0, sh, n1, bottom, I, E):
             lut16(tab, I, np.int32(16 * b), E)
     for x in range(16 * nb, n):
         E[x] = tab[I[x]]
+
+
+@njit(**INLINE)
+def step_codes(B, n, tab, b0, sh, n1, bottom, I, E):
+    """step_code of n values at once (a row): E[x] = the code of the float32 (>= 0) whose
+    bits are B[x] (int32), x < n. The buckets into I (int32 row buffer), then the table's
+    entries (lut_row), then the codes: the same values."""
+    for x in range(n):
+        i = (B[x] >> sh) - b0
+        I[x] = np.int32(0) if i < np.int32(0) else (n1 if i > n1 else i)
+    lut_row(tab, I, n, E)
     m = (np.int32(1) << sh) - np.int32(1)
     f = (np.int32(1) << (sh + np.int32(1))) - np.int32(1)
     for x in range(n):

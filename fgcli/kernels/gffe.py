@@ -16,10 +16,9 @@ import numpy as np
 from numba import njit, prange
 
 from fgcli.kernels._common import (ALL1, F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b,
-                                   f2i64, sdepth_b, sflow_b, smv_b, sval_b)
+                                   f2i64, lut_row, sdepth_b, sflow_b, smv_b, sval_b)
 from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
-from fgcli.kernels._intrin import (HAVE_AVX2, HAVE_WINDOW16, atomic_min_i64, bilinear16x3,
-                                   lut16, mad32)
+from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
 # the colour samples' taps fetched 16 pixels at a time (fgcli.kernels._intrin.bilinear16x3,
@@ -466,7 +465,7 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
                 br[x] = I64_MAX
     same = (hs == h) & (ws == w)
     # with want: its cells as a bitmap (bit q & 31 of word q >> 5), read 16 fragments at a
-    # time by gathers (lut16): a fragment is tested against its target's want cell in the
+    # time by gathers (lut_row): a fragment is tested against its target's want cell in the
     # vectorised pass, and the scatter sees the few that hit a want cell. (A uint8 read at
     # each fragment's target kept the pass scalar: 7 ms per 1080p frame for ~500 holes.)
     nwd = (h * w + 31) // 32 if has_want else 1
@@ -513,13 +512,7 @@ def splat_min_kernel(px, py, sc, dn, use, h, w, want, has_want, buf, src, dep):
                                                 wm1, hm1)
                         Q[x] = np.int32(q) if inside else np.int32(-1)
                         WI[x] = np.int32(q) >> np.int32(5)
-                    nb = 0
-                    if HAVE_AVX2:
-                        nb = ws // 16
-                        for b in range(nb):
-                            lut16(bm, WI, np.int32(16 * b), WB)
-                    for x in range(16 * nb, ws):
-                        WB[x] = bm[WI[x]]
+                    lut_row(bm, WI, ws, WB)
                     anyh = U0
                     for x in range(ws):
                         q = Q[x]
