@@ -342,8 +342,14 @@ def _depth_rank(dv, tab, b0, sh, n1, bottom):
     16-lane gathers, and a float -> int32 conversion, which AVX2 has (float -> int64
     needs AVX-512; LLVM made the loop scalar for it: 1080p, Zen 3, 4.2 -> 3.5 ms)."""
     v = sdepth_b(dv)
-    step = step_code(v, tab, b0, sh, n1, bottom)
-    return np.int32(1023) - (step if v > F32(0.0) else np.int32(0))
+    return _rank_of(step_code(v, tab, b0, sh, n1, bottom), v > F32(0.0))
+
+
+@njit(**INLINE)
+def _rank_of(step, positive):
+    """A depth's priority from its step-table code: 1023 - the step; 1023 where the depth
+    is not positive (int32)."""
+    return np.int32(1023) - (step if positive else np.int32(0))
 
 
 @njit(**KERNEL)
@@ -557,7 +563,7 @@ def _entries_prio_rows(ya, yb, l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec,
                 B[x] = F32(sdepth_b(depth[y, x])).view(np.int32)
             step_codes(B, w, tab, b0, sh, n1, bottom, I, E)
             for x in range(w):
-                hv = np.int64(np.int32(1023) - (E[x] if B[x] > np.int32(0) else np.int32(0)))
+                hv = np.int64(_rank_of(E[x], B[x] > np.int32(0)))
                 prio[y, x] = np.uint16(_prio(hv, _agreement(s0[x], _lum(c1, y, x), ins[x])))
         else:
             for x in range(w):

@@ -67,7 +67,7 @@ def _sample_px(img, flow, sel, base, has_base, gxn, gyy, kx, ky, hw, hh, wm1, hm
 
 @njit(**ROWS)
 def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
-                       out, fout, inplace, want_f, XA, XB, YA, YB, Z, WT, R):
+                       out, fout, inplace, want_f, f_inplace, XA, XB, YA, YB, Z, WT, R):
     """sample_where_kernel's rows ya..yb (one chunk of its parallel loop)."""
     h, w = sel.shape
     hw = F32(w * 0.5)
@@ -80,8 +80,14 @@ def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase,
     for y in range(ya, yb):
         gyy = gyn[y]
         sr = sel[y]
-        if want_f:  # (per plane, base or zero chosen outside the loop: a load under a
-            # select of has_fbase made the loop scalar or masked)
+        keep = False  # fout is flow and the whole row selected: nothing to write
+        if want_f and f_inplace and not has_fbase:
+            m = np.int64(0)
+            for x in range(w):
+                m += np.int64(sr[x])
+            keep = m == w
+        if want_f and not keep:  # (per plane, base or zero chosen outside the loop: a
+            # load under a select of has_fbase made the loop scalar or masked)
             for c in range(2):
                 fo = fout[c, y]
                 fl = flow[c, y]
@@ -145,9 +151,11 @@ def _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase,
 
 @njit(**KERNEL)
 def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx, ky,
-                        out, fout, inplace, want_f):
+                        out, fout, inplace, want_f, f_inplace):
     """out = where(sel, backward_warp(img, flow, 'bilinear'), base or 0) (3 channels) and,
-    with want_f, fout = where(sel, flow, fbase or 0).
+    with want_f, fout = where(sel, flow, fbase or 0); f_inplace: fout is flow itself (a
+    row wholly selected is then left as it is: the warp's dense selection, 16 MB of
+    writes spared per 1080p frame).
 
     Sparse selections (the fills select their holes, often 0-2 % of the pixels) skip the
     sampling: a run of SPAN pixels with no pixel selected copies base (or zeroes; nothing
@@ -170,7 +178,7 @@ def sample_where_kernel(img, flow, sel, base, has_base, fbase, has_fbase, gxn, g
         WT = np.empty((4, w), dtype=np.float32)
         R = np.empty((3, w), dtype=np.float32)
         _sample_where_rows(ya, yb, img, flow, sel, base, has_base, fbase, has_fbase, gxn, gyn, kx,
-                           ky, out, fout, inplace, want_f, XA, XB, YA, YB, Z, WT, R)
+                           ky, out, fout, inplace, want_f, f_inplace, XA, XB, YA, YB, Z, WT, R)
 
 
 # ----------------------------------------------------------------------------- warp
@@ -1406,16 +1414,24 @@ def vector_rule_kernel(mv1, depth1, valid, a, keep, took, flow, depth, mv):
 # unprojected there alone
 # (hist_sel_kernel; where P'_0 is the sky it is never taken, so it needs no sky pass).
 
+@njit(**INLINE)
+def _hist_xp(mv1, y, x):
+    """x' = the centre of pixel (x, y) + mv1 there (sanitised), as float32 (x, y)."""
+    return ((F32(I32(x)) + HALF) + smv_b(mv1[0, y, x]),
+            (F32(y) + HALF) + smv_b(mv1[1, y, x]))
+
+
 @njit(**KERNEL)
-def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, nsky, xp, yp,
-                  use, idx, nuse, older):
+def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, nsky, use,
+                  nuse, older):
     """P_0 = unproject_kernel's surface points of depth (h, w) at the pixel centres (gx
     (1, w), gy (h, 1); kx, ky, A, M its coefficients) into p (4, h, w), with ss and nsky
-    as it writes them; then per pixel x' = x + mv1 (sanitised) into xp, yp, the static
+    as it writes them; then per pixel x' = x + mv1 (sanitised: _hist_xp) and the static
     test against P_0 projected into the previous camera (project_kernel's _project_px; V,
-    P, hw, hh its coefficients) and the pixel containing x' (idx, flat, int32: AVX2 has no
-    vector float -> int64 conversion, and an int64 store halved the loop's vector width;
-    use: dynamic, a surface, x' on screen; nuse (h,) int64 their count per row). Each row:
+    P, hw, hh its coefficients): use = dynamic, a surface, x' on screen; nuse (h,) int64
+    their count per row. x' and the pixel containing it are not stored: hist_at_kernel
+    makes them again at the selected pixels alone (a few percent of a frame; three
+    frame-sized planes, 25 MB at 1080p, were written here and read there). Each row:
     the unprojection's loop, the sky count's, the test's on the row just written, the
     count's (each loop vectorised on its own). older (j, 4, h, w): the trajectory's older
     planes, P_0's row copied into each while it is in cache, on the rows without sky (the
@@ -1425,8 +1441,6 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
     h, w = depth.shape
     wf = F32(w)
     hf = F32(h)
-    wm1 = F32(w - 1)
-    hm1 = F32(h - 1)
     for pr in prange(h):
         y = np.int64(pr)
         o0 = p[0, y]
@@ -1434,13 +1448,9 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
         o2 = p[2, y]
         o3 = p[3, y]
         nsky[y] = _unproject_row(gx, gy, y, kx, ky, depth[y], A, M, o0, o1, o2, o3, ss[y])
-        yc = F32(y) + HALF
         for x in range(w):
             qx, qy, _, ok = _project_px(o0[x], o1[x], o2[x], o3[x], V, P, hw, hh)
-            a = (F32(I32(x)) + HALF) + smv_b(mv1[0, y, x])
-            b = yc + smv_b(mv1[1, y, x])
-            xp[y, x] = a
-            yp[y, x] = b
+            a, b = _hist_xp(mv1, y, x)
             ex = qx - a
             ey = qy - b
             dist2 = ex * ex + ey * ey
@@ -1448,7 +1458,6 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
             ix = np.floor(a)
             iy = np.floor(b)
             inside = (ix >= ZERO) & (ix < wf) & (iy >= ZERO) & (iy < hf)
-            idx[y, x] = I32(clamp_b(iy, ZERO, hm1) * wf + clamp_b(ix, ZERO, wm1))
             use[y, x] = np.uint8(1) if (dyn & inside) else U0
         n = 0
         ur = use[y]
@@ -1501,79 +1510,95 @@ def _match_tap(ix, iy, t, w, h):
     return min(max(iy + oy, 0), h - 1) * w + min(max(ix + ox, 0), w - 1)
 
 
+@njit(**KERNEL)
+def hist_at_kernel(sel, mv1, xs, ys, ids):
+    """At the selected pixels sel (flat, (n,)): x' (hist_p_kernel's, _hist_xp) into xs,
+    ys and the pixel containing it, clamped to the frame, into ids (flat)."""
+    h, w = mv1.shape[1], mv1.shape[2]
+    wf = F32(w)
+    wm1 = F32(w - 1)
+    hm1 = F32(h - 1)
+    for i in prange(sel.shape[0]):
+        s = sel[i]
+        y = s // w
+        x = s - y * w
+        a, b = _hist_xp(mv1, y, x)
+        xs[i] = a
+        ys[i] = b
+        # (in float32, as the reference: exact below 2**24 pixels, its rounding above)
+        ids[i] = f2i64(clamp_b(np.floor(b), ZERO, hm1) * wf + clamp_b(np.floor(a), ZERO, wm1))
+
+
 @njit(**INLINE)
-def _match_base(xp, yp, w, h, y, x):
-    ix = f2i64(clamp_b(np.floor(xp[y, x]), ZERO, F32(w - 1)))
-    iy = f2i64(clamp_b(np.floor(yp[y, x]), ZERO, F32(h - 1)))
+def _match_base(xs, ys, w, h, i):
+    ix = f2i64(clamp_b(np.floor(xs[i]), ZERO, F32(w - 1)))
+    iy = f2i64(clamp_b(np.floor(ys[i]), ZERO, F32(h - 1)))
     return ix, iy
 
 
 @njit(**KERNEL)
-def hist_taps_kernel(sel, depth0, depth1, xp, yp, out):
-    """The arguments of _match_idx's logarithms at the selected pixels sel (flat): out
-    (n, 10) float32, columns 0-8 depth0 at the 3x3 taps around x' (the reference's
-    order), column 9 depth1 at the pixel itself, each through _log_arg. The caller takes
-    torch.log of out in place: the reference's values (its logarithms of the whole
-    frame, read at the taps; torch.log's result for an element does not depend on its
-    position, tests/test_kernels.py::test_torch_math_position_free); 10 logarithms per
-    dynamic pixel instead of the whole frame's."""
-    h, w = xp.shape
+def hist_taps_kernel(sel, depth0, depth1, xs, ys, out):
+    """The arguments of _match_idx's logarithms at the selected pixels sel (flat; xs, ys
+    their x', hist_at_kernel's): out (n, 10) float32, columns 0-8 depth0 at the 3x3 taps
+    around x' (the reference's order), column 9 depth1 at the pixel itself, each through
+    _log_arg. The caller takes torch.log of out in place: the reference's values (its
+    logarithms of the whole frame, read at the taps; torch.log's result for an element
+    does not depend on its position, tests/test_kernels.py::test_torch_math_position_free);
+    10 logarithms per dynamic pixel instead of the whole frame's."""
+    h, w = depth1.shape
     d0 = depth0.reshape(-1)
     for i in prange(sel.shape[0]):
         s = sel[i]
         y = s // w
         x = s - y * w
-        ix, iy = _match_base(xp, yp, w, h, y, x)
+        ix, iy = _match_base(xs, ys, w, h, i)
         for t in range(9):
             out[i, t] = _log_arg(d0[_match_tap(ix, iy, t, w, h)])
         out[i, 9] = _log_arg(depth1[y, x])
 
 
 @njit(**KERNEL)
-def hist_match_kernel(sel, lg, xp, yp, eps, lim, idx, fb):
-    """_match_idx on the selected pixels sel (flat, ascending), lg (n, 10) the logarithms
-    of hist_taps_kernel's arguments: of the 3x3 pixels around x', the first whose log
-    depth0 is nearer to the pixel's log depth1 than the best so far by more than eps
-    (taps in the reference's order); idx updated, fb = no tap within lim."""
-    h, w = xp.shape
-    n = sel.shape[0]
-    for i in prange(n):
-        s = sel[i]
-        y = s // w
-        x = s - y * w
-        ix, iy = _match_base(xp, yp, w, h, y, x)
+def hist_match_kernel(lg, xs, ys, w, h, eps, lim, ids, fb):
+    """_match_idx on the selected pixels (xs, ys their x', ids the pixels containing it,
+    hist_at_kernel's; lg (n, 10) the logarithms of hist_taps_kernel's arguments): of the
+    3x3 pixels around x', the first whose log depth0 is nearer to the pixel's log depth1
+    than the best so far by more than eps (taps in the reference's order); ids updated,
+    fb (n,) = no tap within lim."""
+    for i in prange(ids.shape[0]):
+        ix, iy = _match_base(xs, ys, w, h, i)
         l1 = lg[i, 9]
         best = INF
-        bj = idx[y, x]
+        bj = ids[i]
         for t in range(9):
             err = abs(lg[i, t] - l1)
             better = err < best - eps
             best = err if better else best
             bj = _match_tap(ix, iy, t, w, h) if better else bj
-        idx[y, x] = bj
-        fb[y, x] = np.uint8(1) if best > lim else U0
+        ids[i] = bj
+        fb[i] = np.uint8(1) if best > lim else U0
 
 
 @njit(**KERNEL)
-def hist_sel_kernel(sel, p, idx, fb, depth1, depth0, from_prev, xp, yp, kx, ky, A, M, prev,
+def hist_sel_kernel(sel, p, ids, fb, depth1, depth0, from_prev, xs, ys, kx, ky, A, M, prev,
                     nprev, out, dyn):
-    """The trajectory at the selected pixels sel (flat; out (k, 4, H, W) holds P_0 in
+    """The trajectory at the selected pixels sel (flat; xs, ys their x', ids the pixel
+    each reads, fb where the match fell back: (n,) each; out (k, 4, H, W) holds P_0 in
     every plane, dyn zeros): P'_0 = the previous frame's point at x' (depth0 at the pixel
-    idx, or depth1 where the match fell back (fb), unprojected at x' with the previous
-    camera's coefficients kx, ky, A, M; from_prev: prev[0] read at idx), taken where it is
-    a surface of P_0's kind; P_i (i >= 2) = prev[i - 1] at idx (the fallback's point where
+    ids, or depth1 where the match fell back, unprojected at x' with the previous
+    camera's coefficients kx, ky, A, M; from_prev: prev[0] read at ids), taken where it is
+    a surface of P_0's kind; P_i (i >= 2) = prev[i - 1] at ids (the fallback's point where
     fb) where prev has it (i - 1 < nprev) and its kind is P_0's, else P'_0. dyn = where
     P'_0 is taken. Unused inputs are stand-ins of the right kind."""
     k = out.shape[0]
-    h, w = idx.shape
+    h, w = depth1.shape
     pvf = prev.reshape((prev.shape[0], 4, prev.shape[2] * prev.shape[3]))
     d0f = depth0.reshape(h * w)
     for i in prange(sel.shape[0]):
         s = sel[i]
         y = s // w
         x = s - y * w
-        n = idx[y, x]
-        f = fb[y, x] != U0
+        n = ids[i]
+        f = fb[i] != U0
         if from_prev and not f:
             q0 = pvf[0, 0, n]
             q1 = pvf[0, 1, n]
@@ -1581,8 +1606,7 @@ def hist_sel_kernel(sel, p, idx, fb, depth1, depth0, from_prev, xp, yp, kx, ky, 
             q3 = pvf[0, 3, n]
         else:
             d = depth1[y, x] if f else d0f[n]
-            q0, q1, q2, q3, _ = _surface_px(xp[y, x] * kx - ONE, ONE - yp[y, x] * ky, d,
-                                            A, M)
+            q0, q1, q2, q3, _ = _surface_px(xs[i] * kx - ONE, ONE - ys[i] * ky, d, A, M)
         p3 = p[3, y, x]
         if not ((q3 == p3) & (q3 > ZERO)):
             continue

@@ -20,6 +20,7 @@ _DUMMY3 = np.zeros((1, 1, 1), dtype=np.float32)
 _DUMMY2 = np.zeros((1, 1), dtype=np.float32)
 _DUMMYB = np.zeros((1, 1), dtype=np.bool_)
 _DUMMYU8 = np.zeros((1, 1), dtype=np.uint8)
+_NO_PLANES = np.zeros((0, 4, 1, 1), dtype=np.float32)  # (no trajectory planes to copy into)
 
 
 def _a(t: torch.Tensor) -> np.ndarray:
@@ -888,7 +889,8 @@ def _warm_kernels(families=None) -> tuple:
                     gffe.splat_min_kernel, gffe.bg_resolve_kernel, gffe.bg_bilinear_kernel,
                     gffe.pp_down0_kernel, gffe.pp_down_kernel, gffe.pp_up_kernel,
                     gffe.pp_final_kernel, gffe.reproject_took_kernel, gffe.vector_rule_kernel,
-                    gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_p_kernel,
+                    gffe.bg_fill_kernel, gffe.cells_of_kernel, gffe.hist_at_kernel,
+                    gffe.hist_p_kernel,
                     gffe.hist_match_kernel, gffe.hist_taps_kernel, gffe.hist_sel_kernel,
                     gffe.select_rows_kernel, gffe.bits_count_kernel,
                     gffe.col_init_kernel, gffe.col_case_kernel, gffe.col_behind_kernel,
@@ -1558,7 +1560,7 @@ def _unproject_into(depth, cam, s, size, o):
     unproject_kernel(d, s[0], s[1], kx, ky, A, M, o, ss, nsky)
     sky = _sky_rows(nsky, ss)
     if sky is not None:
-        unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o)
+        unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o, _NO_PLANES)
 
 
 def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None, valid=None):
@@ -1724,49 +1726,50 @@ def track_history(depth1, mv1, cam1, cam0=None, depth0=None, prev=None, k=2, thr
         return G.track_history(depth1, mv1, cam1, cam0, depth0, prev, k, threshold,
                                first_frame, lookup, match_tol, geom=GEOM)
     from fgcli.kernels.geom import unproject_sky_kernel
-    from fgcli.kernels.gffe import (hist_match_kernel, hist_p_kernel, hist_sel_kernel,
-                                    hist_taps_kernel, select_rows_kernel)
+    from fgcli.kernels.gffe import (hist_at_kernel, hist_match_kernel, hist_p_kernel,
+                                    hist_sel_kernel, hist_taps_kernel, select_rows_kernel)
 
     # P_0 is unprojected straight into the trajectory, tested there (fgcli.kernels.gffe's
     # history notes), then copied into the older planes
     traj = _empty(k, 4, h, w)
     pa = traj[0].numpy()
+    older = traj.numpy()[1:]
     d1a = _a(depth1)[0]
     gx, gy = _grid_half(h, w)
     kx, ky, A, M = _unproject_coefs(cam1, (h, w))
     V, P, hw, hh = _project_coefs(cam0, (h, w))
     ss = np.empty((h, w), dtype=np.float32)
     nsky = np.empty(h, dtype=np.int64)
-    xp, yp = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
     use = np.empty((h, w), dtype=np.uint8)
-    idx = np.empty((h, w), dtype=np.int32)  # (flat pixel indices: below 2**31)
     nuse = np.empty(h, dtype=np.int64)
     hist_p_kernel(d1a, gx, gy, kx, ky, A, M, V, P, hw, hh, _a(mv1), F32(threshold * threshold),
-                  pa, ss, nsky, xp, yp, use, idx, nuse, traj.numpy()[1:])
+                  pa, ss, nsky, use, nuse, older)
     sky = _sky_rows(nsky, ss)
-    if sky is not None:  # (the rows with sky: copied into the older planes here)
-        unproject_sky_kernel(d1a, gx, gy, kx, ky, A, M, sky[1], sky[0], pa)
-        y0, y1 = sky[0], sky[0] + sky[1].shape[0]
-        traj[1:, :, y0:y1] = traj[0:1, :, y0:y1]
+    if sky is not None:  # (the rows with sky: copied into the older planes there)
+        unproject_sky_kernel(d1a, gx, gy, kx, ky, A, M, sky[1], sky[0], pa, older)
     dyn = torch.zeros(1, h, w, dtype=torch.bool)
     end = np.cumsum(nuse)
     if end[-1] == 0:
         return traj, dyn
-    sel = np.empty(int(end[-1]), dtype=np.int64)
+    # the selected pixels' x' and the pixel each reads (flat int64), made again here
+    n = int(end[-1])
+    sel = np.empty(n, dtype=np.int64)
     select_rows_kernel(use, end, sel)
-    fb = np.zeros((h, w), dtype=np.uint8)
+    xs, ys, ids = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.int64)
+    hist_at_kernel(sel, _a(mv1), xs, ys, ids)
+    fb = np.zeros(n, dtype=np.uint8)
     if lookup == "match" and depth0 is not None:
         # the logarithms the search reads (10 per selected pixel: 9 taps of frame 0, the
         # pixel of frame 1), by torch.log as the reference's
-        lg = torch.empty(sel.shape[0], 10)
-        hist_taps_kernel(sel, _a(depth0)[0], d1a, xp, yp, lg.numpy())
+        lg = torch.empty(n, 10)
+        hist_taps_kernel(sel, _a(depth0)[0], d1a, xs, ys, lg.numpy())
         lg.log_()
-        hist_match_kernel(sel, lg.numpy(), xp, yp, F32(1e-7), F32(np.log1p(match_tol)), idx,
+        hist_match_kernel(lg.numpy(), xs, ys, w, h, F32(1e-7), F32(np.log1p(match_tol)), ids,
                           fb)
     kx0, ky0, A0, M0 = _unproject_coefs(cam0, (h, w))
     pv = _a(prev) if prev is not None else pa[None]
-    hist_sel_kernel(sel, pa, idx, fb, d1a, _a(depth0)[0] if depth0 is not None else d1a,
-                    depth0 is None, xp, yp, kx0, ky0, A0, M0, pv,
+    hist_sel_kernel(sel, pa, ids, fb, d1a, _a(depth0)[0] if depth0 is not None else d1a,
+                    depth0 is None, xs, ys, kx0, ky0, A0, M0, pv,
                     prev.shape[0] if prev is not None else 0, traj.numpy(), _u8(dyn)[0])
     return traj, dyn
 
@@ -1822,7 +1825,7 @@ def _sample_where(img, flow, sel, base=None, fbase=None, flow_out=True, in_place
     sample_where_kernel(ia, fa, _u8(sel).reshape(h, w), ia if base is None else _a(base),
                         base is not None, fa if fbase is None else _a(fbase),
                         fbase is not None, gxn, gyn, kx, ky, out.numpy(),
-                        fa if fout is None else fout.numpy(), inp, flow_out)
+                        fa if fout is None else fout.numpy(), inp, flow_out, fout is flow)
     return out, fout
 
 
