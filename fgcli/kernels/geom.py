@@ -170,6 +170,17 @@ def _sky_span(dr, nxr, nyr, nr, xa, n, A, M, t0, t1, t2):
     return m
 
 
+@njit(**INLINE)
+def copy_row_planes(p, older, y):
+    """Row y of the four planes p (4, h, w) into every plane set of older (j, 4, h, w)."""
+    for j in range(older.shape[0]):
+        for c in range(4):
+            pc = p[c, y]
+            qc = older[j, c, y]
+            for x in range(pc.shape[0]):
+                qc[x] = pc[x]
+
+
 @njit(**KERNEL)
 def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out, older):
     """unproject_kernel's second pass: the sky pixels of rows y0 .. y0 + len(nrm) - 1, nrm
@@ -203,12 +214,7 @@ def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out, older):
                 o0[xa + i] = t0[i] if sky else o0[xa + i]
                 o1[xa + i] = t1[i] if sky else o1[xa + i]
                 o2[xa + i] = t2[i] if sky else o2[xa + i]
-        for j in range(older.shape[0]):
-            for c in range(4):
-                oc = out[c, y]
-                qc = older[j, c, y]
-                for x in range(w):
-                    qc[x] = oc[x]
+        copy_row_planes(out, older, y)
 
 
 # ----------------------------------------------------------------------------- project

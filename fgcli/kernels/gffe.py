@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (ALL1, F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b,
                                    f2i64, lut_row, sdepth_b, sflow_b, smv_b, sval_b)
-from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row
+from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row, copy_row_planes
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -1465,12 +1465,7 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
             n += np.int64(ur[x])
         nuse[y] = n
         if nsky[y] == 0:
-            for j in range(older.shape[0]):
-                for c in range(4):
-                    oc = p[c, y]
-                    qc = older[j, c, y]
-                    for x in range(w):
-                        qc[x] = oc[x]
+            copy_row_planes(p, older, y)
 
 
 @njit(**KERNEL)
