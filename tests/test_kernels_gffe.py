@@ -661,6 +661,13 @@ def test_median_depth_matches_the_reference():
         z[0, 60, 5] = NAN
         z[0, 90, 200] = 1e30
         cases += [z, z[:, :, :150].contiguous(), z.flip(-1).contiguous()]
+    # flat planes (a run of one bin through whole blocks and on across them), blocks of
+    # sky between them, and one spike
+    z = torch.full((1, 40, 300), 7.0)
+    z[0, 10:14] = INF
+    z[0, 22:] = 3.0
+    z[0, 5, 7] = 9.0
+    cases += [z, z[:, :, :171].contiguous(), z[:, 3:].contiguous()]
     for i, c in enumerate(cases):
         a, b = K.median_depth(c), G.median_depth(c)
         assert (math.isnan(a) and math.isnan(b)) or a == b, (i, a, b)
@@ -709,7 +716,7 @@ def test_dilated_positions_matches_the_reference(h, w):
                               K.dilated_positions(*args), G.dilated_positions(*args))
 
 
-@pytest.mark.parametrize("h,w", [(12, 40), (33, 51), (20, 130)])
+@pytest.mark.parametrize("h,w", [(12, 40), (33, 51), (20, 130), (9, 300)])
 def test_fill_holes_reprojects_the_rows_with_holes_only(h, w):
     """fill_holes computes the proxy points of rows with holes only (the other rows' are
     never read): bit-identical to the same kernels over every row (the reference's
@@ -806,11 +813,13 @@ def test_hole_fills_in_place_write_scratch_only(h, w):
     wp = G.warp_positions(f["c1"], G.estimate_positions(traj, 0.5), f["cam_x"])
     sparse = torch.ones(1, h, w, dtype=torch.bool)
     sparse[0, ::3, ::29] = False
+    left = torch.ones(1, h, w, dtype=torch.bool)  # (holes in the rows' first run of 64
+    left[0, 1::3, 2:9] = False  # pixels only: the others hold none)
     prev = G.collect_background(f["c1"], f["d0"], ~dyn, f["cam0"])
     layers = G.collect_background(f["c1"], f["d1"], ~dyn, f["cam1"], prev, f["cam0"])
     frames = [(wp["color"], wp["depth"], wp["mv"], wp["valid"]),
               (f["ch"], f["dh"], f["mh"], ~f["holes"]),
-              (f["ch"], f["d1"], f["mh"], sparse)]
+              (f["ch"], f["d1"], f["mh"], sparse), (f["ch"], f["d1"], f["mh"], left)]
     took_path = set()
     for i, (c, d, m, v) in enumerate(frames):
         calls = {

@@ -1273,6 +1273,45 @@ def reproject_took_kernel(px, py, ok, valid, depth, depth1, clamp, keep, took, f
             flow[1, y, x] = (sy - yh) if t else ZERO
 
 
+@njit(**INLINE)
+def _reproject_mv_run(px, py, ok, valid, depth, d1f, clamp, keep, mv0, took, flow, mv_out,
+                      inplace, y, yh, xa, xb, wf, hf, wsf, hsf):
+    """reproject_mv_kernel's pixels xa..xb of row y (a row with a hole)."""
+    for x in range(xa, xb):
+        o = ok[y, x] != U0
+        sx = px[y, x]
+        sy = py[y, x]
+        cx = clamp_b(sx, HALF, wf - HALF)
+        cy = clamp_b(sy, HALF, hf - HALF)
+        sx = cx if (o & clamp) else sx
+        sy = cy if (o & clamp) else sy
+        ix = np.floor(sx)
+        iy = np.floor(sy)
+        inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
+        j = f2i64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
+        s = d1f[j]
+        s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
+        s = FMAX if s > FMAX else s
+        s = -FMAX if s < -FMAX else s
+        dq = depth[y, x]
+        vv = valid[y, x] != U0
+        t = (not vv) & o & inside & (s >= dq * keep)
+        took[y, x] = np.uint8(1) if t else U0
+        f0 = (sx - (F32(I32(x)) + HALF)) if t else ZERO
+        f1 = (sy - yh) if t else ZERO
+        flow[0, y, x] = f0
+        flow[1, y, x] = f1
+        if inplace:
+            if not vv:
+                mv_out[0, y, x] = f0
+                mv_out[1, y, x] = f1
+        else:
+            m0 = mv0[0, y, x] if vv else ZERO
+            m1 = mv0[1, y, x] if vv else ZERO
+            mv_out[0, y, x] = f0 if t else m0
+            mv_out[1, y, x] = f1 if t else m1
+
+
 @njit(**KERNEL)
 def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took, flow,
                         mv_out, rows, some, inplace):
@@ -1282,7 +1321,10 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
     With ``some``, rows y with rows[y] == 0 have no hole: nothing is taken there, and
     px, py, ok are not read (reproject_kernel left them unwritten). inplace (with
     ``some``): mv_out is mv0 itself, written at the holes only (mv0 never read), and
-    flow only in the rows with a hole (the sampling reads no other)."""
+    flow only in the rows with a hole. In a row with a hole, a run of SPAN pixels without
+    one (a moving camera's rows nearly all hold a hole, most of their runs none) takes
+    nothing and keeps its vectors, and its flow is not written: it is sample_where_kernel's
+    run, skipped where nothing is taken, reading no flow there."""
     h, w = depth.shape
     hs, ws = depth1.shape
     wf = F32(w)
@@ -1306,39 +1348,26 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
                 mv_out[0, y, x] = mv0[0, y, x] if vv else ZERO
                 mv_out[1, y, x] = mv0[1, y, x] if vv else ZERO
             continue
-        for x in range(w):
-            o = ok[y, x] != U0
-            sx = px[y, x]
-            sy = py[y, x]
-            cx = clamp_b(sx, HALF, wf - HALF)
-            cy = clamp_b(sy, HALF, hf - HALF)
-            sx = cx if (o & clamp) else sx
-            sy = cy if (o & clamp) else sy
-            ix = np.floor(sx)
-            iy = np.floor(sy)
-            inside = (ix >= ZERO) & (ix < wsf) & (iy >= ZERO) & (iy < hsf)
-            j = f2i64(clamp_b(iy, ZERO, hsf - ONE) * wsf + clamp_b(ix, ZERO, wsf - ONE))
-            s = d1f[j]
-            s = ZERO if s != s else s  # nan_to_num(nan=0): +-inf -> +-float32 max
-            s = FMAX if s > FMAX else s
-            s = -FMAX if s < -FMAX else s
-            dq = depth[y, x]
-            vv = valid[y, x] != U0
-            t = (not vv) & o & inside & (s >= dq * keep)
-            took[y, x] = np.uint8(1) if t else U0
-            f0 = (sx - (F32(I32(x)) + HALF)) if t else ZERO
-            f1 = (sy - yh) if t else ZERO
-            flow[0, y, x] = f0
-            flow[1, y, x] = f1
-            if inplace:
-                if not vv:
-                    mv_out[0, y, x] = f0
-                    mv_out[1, y, x] = f1
-            else:
-                m0 = mv0[0, y, x] if vv else ZERO
-                m1 = mv0[1, y, x] if vv else ZERO
-                mv_out[0, y, x] = f0 if t else m0
-                mv_out[1, y, x] = f1 if t else m1
+        vr = valid[y]
+        tr = took[y]
+        for x in range(w):  # (the whole row as if nothing were taken; vectorised)
+            tr[x] = U0
+        if not inplace:
+            for c in range(2):
+                mo = mv_out[c, y]
+                mi = mv0[c, y]
+                for x in range(w):
+                    mo[x] = mi[x] if vr[x] != U0 else ZERO
+        for xs in range((w + SPAN - 1) // SPAN):
+            xa = np.int64(xs) * SPAN
+            xb = min(xa + SPAN, w)
+            m = np.int64(0)
+            for x in range(xa, xb):
+                m += np.int64(vr[x])
+            if m == xb - xa:  # no hole in the run: nothing taken; its flow is not read
+                continue
+            _reproject_mv_run(px, py, ok, valid, depth, d1f, clamp, keep, mv0, took, flow,
+                              mv_out, inplace, y, yh, xa, xb, wf, hf, wsf, hsf)
 
 
 @njit(**KERNEL)
