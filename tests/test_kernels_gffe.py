@@ -177,6 +177,19 @@ def test_reproject_is_project_of_unproject(h, w):
         r = r[:3] + (r[3] & valid[0],)
         sel = torch.from_numpy(rows.astype(bool))
         same_tree(f"masked rows {trial}", [t[sel] for t in k], [t[sel] for t in r])
+        # runs of 3 pixels (fill_holes': of 64): rows with none, some and all of their runs
+        # marked; the marked runs' pixels as the reference's, sky among them
+        run = 3
+        nr = -(-w // run)
+        runs = (torch.rand(h, nr, generator=g) < 0.4).to(torch.uint8).numpy()
+        runs[0] = 1
+        runs[h // 2] = 0
+        sel = torch.from_numpy(np.repeat(runs.astype(bool), run, axis=1)[:, :w])
+        vrun = np.ones((h, w), dtype=np.uint8)  # (a hole in each marked run)
+        vrun[:, ::run] = (~sel.numpy()[:, ::run]).astype(np.uint8)
+        k = K.reproject(d, cam_a, cam_b, size, rows=runs.max(axis=1), run=run, vrun=vrun)
+        r = G.project(G.unproject(d, cam_a), cam_b, size)
+        same_tree(f"marked runs {trial}", [t[sel] for t in k], [t[sel] for t in r])
 
 
 @pytest.mark.parametrize("h,w", SIZES)

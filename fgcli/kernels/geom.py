@@ -263,24 +263,82 @@ def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
 
 # ----------------------------------------------------------------------------- reproject
 
+@njit(**INLINE)
+def _reproject_run(px, py, y, kx, ky, dr, A, M, V, P, hw, hh, xa, xb, rx, ry, rd, ro, sr,
+                   nxb, nyb):
+    """reproject_kernel's pixels xa..xb of row y alone (no valid mask): the samples as
+    _ndc_row makes them (into nxb, nyb), unprojected (_surface_px) and projected in one
+    loop, the sky counted in a loop of its own (as _unproject_row: each loop vectorised);
+    returns the run's sky count (its squared norms in sr)."""
+    m = xb - xa
+    pxr = px[0] if px.shape[0] == 1 else px[y]
+    for i in range(m):
+        nxb[i] = pxr[xa + i] * kx - ONE
+    if py.shape[1] == 1:
+        c = ONE - py[y, 0] * ky
+        for i in range(m):
+            nyb[i] = c
+    else:
+        pyr = py[y]
+        for i in range(m):
+            nyb[i] = ONE - pyr[xa + i] * ky
+    for i in range(m):
+        a, b, c, e, q = _surface_px(nxb[i], nyb[i], dr[xa + i], A, M)
+        sr[xa + i] = q
+        qx, qy, dd, o = _project_px(a, b, c, e, V, P, hw, hh)
+        rx[xa + i] = qx
+        ry[xa + i] = qy
+        rd[xa + i] = dd
+        ro[xa + i] = o
+    n = 0
+    for i in range(m):
+        n += np.int64(dr[xa + i] == INF)
+    return n
+
+
 @njit(**KERNEL)
 def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, ook, ss, nsky,
-                     rows, some, valid, has_valid, dm):
+                     rows, some, run, vrun, valid, has_valid, dm):
     """project(unproject(depth, samples), camera 2) without the positions in memory: per
     row, unproject_kernel's surface points into row buffers, then project_kernel's loop
     on them (each loop as vectorised as in its own kernel; the positions stay in cache).
     ss, nsky as unproject_kernel's; the sky pixels' outputs are finished by
     reproject_sky_kernel. With ``some``, only the rows y with rows[y] != 0 (uint8 (h,));
-    the others get a sky count of 0 (the sky pass skips them) and garbage outputs.
+    the others get a sky count of 0 (the sky pass skips it) and garbage outputs. With
+    ``some`` and run < w (no valid mask then: has_valid false), only the runs of ``run``
+    pixels of those rows (pixels r * run .. (r + 1) * run - 1) that hold a 0 in vrun (h,
+    w) uint8 0 / 1 (fill_holes: its holes), one by one (_reproject_run); the others'
+    outputs are garbage and their ss 1 (the sky pass's sqrt reads no garbage).
 
     has_valid: the depth is where(valid, depth, 0) (valid (h, w) uint8; a layer's valid
     cells) and ook is ok & valid, without that depth plane made first: each row masked
     into a row buffer, and written to dm (h, w) where the row has sky (the sky pass reads
     dm then, on those rows only)."""
     h, w = depth.shape
+    nr = (w + run - 1) // run
     for y in prange(h):
         if some and rows[y] == U0:
             nsky[y] = 0  # (the sky pass skips it)
+            continue
+        if some and run < w:
+            sr = ss[y]
+            vr = vrun[y]
+            nxb = np.empty(run, dtype=np.float32)
+            nyb = np.empty(run, dtype=np.float32)
+            n = 0
+            for r in range(nr):
+                xa = np.int64(r) * run
+                xb = min(xa + run, w)
+                m = np.uint8(1)
+                for x in range(xa, xb):
+                    m = min(m, vr[x])
+                if m != U0:
+                    for x in range(xa, xb):
+                        sr[x] = ONE
+                    continue
+                n += _reproject_run(px, py, y, kx, ky, depth[y], A, M, V, P, hw, hh, xa, xb,
+                                    opx[y], opy[y], od[y], ook[y], sr, nxb, nyb)
+            nsky[y] = n
             continue
         dr = depth[y]
         vb = np.empty(w, dtype=np.uint8)  # (a row buffer either way: no branch per pixel)
@@ -316,15 +374,14 @@ def reproject_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, opx, opy, od, oo
 
 @njit(**KERNEL)
 def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx, opy, od,
-                         ook, rows, some, nsky):
+                         ook, nsky):
     """reproject_kernel's sky pixels on rows y0 .. y0 + len(nrm) - 1 (nrm: torch.sqrt of
-    their squared norms): the direction (unproject_sky_kernel's), projected. With
-    ``some``: the rows reproject_kernel computed only. Rows without sky (nsky, its
-    counts; 0 for the rows it skipped) are not read."""
+    their squared norms): the direction (unproject_sky_kernel's), projected. Rows without
+    sky (nsky, its counts; 0 for the rows it skipped) are not read."""
     w = depth.shape[1]
     for r in prange(nrm.shape[0]):
         y = y0 + r
-        if (some and rows[y] == U0) or nsky[y] == 0:
+        if nsky[y] == 0:
             continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)

@@ -1361,10 +1361,10 @@ def reproject_mv_kernel(px, py, ok, valid, depth, depth1, clamp, keep, mv0, took
         for xs in range((w + SPAN - 1) // SPAN):
             xa = np.int64(xs) * SPAN
             xb = min(xa + SPAN, w)
-            m = np.int64(0)
+            m = np.uint8(1)
             for x in range(xa, xb):
-                m += np.int64(vr[x])
-            if m == xb - xa:  # no hole in the run: nothing taken; its flow is not read
+                m = min(m, vr[x])
+            if m != U0:  # no hole in the run: nothing taken; its flow is not read
                 continue
             _reproject_mv_run(px, py, ok, valid, depth, d1f, clamp, keep, mv0, took, flow,
                               mv_out, inplace, y, yh, xa, xb, wf, hf, wsf, hsf)

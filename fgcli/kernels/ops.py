@@ -1563,16 +1563,19 @@ def _unproject_into(depth, cam, s, size, o):
         unproject_sky_kernel(d, s[0], s[1], kx, ky, A, M, sky[1], sky[0], o, _NO_PLANES)
 
 
-def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None, valid=None):
+def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None, valid=None,
+              run=None, vrun=None):
     """project(unproject(depth, cam_from, px, py, size), cam_to, size) by
     geom.reproject_kernel (+ reproject_sky_kernel where there is sky): the same values,
     the positions never written out. rows: an (h,) uint8 array; only the rows it marks
-    are computed (the others' outputs: garbage). valid: a (1, h, w) bool mask;
-    the result is that of where(valid, depth, 0) with ok & valid (a layer's fragments,
-    without that depth plane)."""
+    are computed (the others' outputs: garbage); with run and vrun (an (h, w) uint8 0 / 1
+    array), only the runs of run pixels of those rows that hold a 0 in vrun (no valid
+    then). valid: a (1, h, w) bool mask; the result is that of where(valid, depth, 0) with
+    ok & valid (a layer's fragments, without that depth plane)."""
     s = _samples(depth, px, py) if _geom_ok(depth, size) else None
     if valid is not None and (s is None or not _boolcpu(valid, tuple(depth.shape))):
-        p = reproject(torch.where(valid, depth, 0.0), cam_from, cam_to, size, px, py, rows)
+        p = reproject(torch.where(valid, depth, 0.0), cam_from, cam_to, size, px, py, rows,
+                      run=run, vrun=vrun)
         return p[:3] + (p[3] & valid[0],)
     if s is None:
         return project(unproject(depth, cam_from, px, py, size), cam_to, size)
@@ -1588,15 +1591,19 @@ def reproject(depth, cam_from, cam_to, size, px=None, py=None, rows=None, valid=
     ook = _empty(h, w, dtype=torch.bool)
     outs = (opx.numpy(), opy.numpy(), od.numpy(), ook.numpy())
     some = rows is not None
-    rows = rows if some else np.zeros(1, dtype=np.uint8)
     hv = valid is not None
+    runs = some and run is not None and vrun is not None
+    if runs and (hv or tuple(vrun.shape) != (h, w) or vrun.dtype != np.uint8):
+        raise ValueError("reproject: runs need vrun, an (h, w) uint8 array, and no valid")
+    rows = rows if some else np.zeros(1, dtype=np.uint8)
     dm = np.empty((h, w), dtype=np.float32) if hv else _DUMMY2  # (the sky rows' masked depth)
     reproject_kernel(d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, *outs, ss, nsky, rows, some,
+                     np.int64(run if runs else w), vrun if runs else _DUMMYU8,
                      _u8(valid)[0] if hv else _DUMMYU8, hv, dm)
     sky = _sky_rows(nsky, ss)
     if sky is not None:
         reproject_sky_kernel(dm if hv else d, s[0], s[1], kx, ky, A, M, V, P, hw, hh, sky[1],
-                             sky[0], *outs, rows, some, nsky)
+                             sky[0], *outs, nsky)
     return opx, opy, od, ook
 
 
@@ -2300,15 +2307,17 @@ def fill_holes(color, depth, mv, valid, far_bias=0.1, mode="reproject", offscree
         return G.fill_holes(color, depth, mv, valid, far_bias, mode, offscreen, border_splat,
                             color1, depth1, cam1, cam_x, border,
                             parts=(project_border, push_pull_fill, reproject_fill))
-    from fgcli.kernels.gffe import reproject_mv_kernel
+    from fgcli.kernels.gffe import SPAN, reproject_mv_kernel
 
     inp = _writable(in_place, mv)
     c, d = push_pull_fill(color, valid, depth, far_bias, in_place=inp)
     inp = inp and c is color and d is depth  # (the tile path took them)
     vu = _u8(valid)[0]
-    # the proxy points of the rows with holes only (no other pixel reads them)
+    # the proxy points of the runs of SPAN pixels with holes only (no other pixel reads
+    # them: reproject_mv_kernel works those runs alone); a moving camera's rows nearly all
+    # hold a hole, most of their runs none
     rows = (vu.min(axis=1) == 0).view(np.uint8)
-    px, py, _, pok = reproject(d, cam_x, cam1, (H, W), rows=rows)
+    px, py, _, pok = reproject(d, cam_x, cam1, (H, W), rows=rows, run=SPAN, vrun=vu)
     took = _empty(1, H, W, dtype=torch.bool)
     flow, out = _empty(2, H, W), (mv if inp else mark_scratch(_empty(2, H, W)))
     reproject_mv_kernel(px.numpy(), py.numpy(), _u8(pok), vu, _a(d)[0], _a(depth1)[0],
