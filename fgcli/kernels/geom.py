@@ -102,21 +102,28 @@ def _sky_px(nx, ny, nrm, A, M):
 
 
 @njit(**INLINE)
-def _ndc_row(px, py, y, kx, ky, nxr, nyr):
-    """NDC coordinates of row y's samples: px (h, w) or (1, w) (one row for all), py
-    (h, w) or (h, 1) (one value per row); kx, ky float32 2 / W, 2 / H."""
-    w = nxr.shape[0]
+def _ndc_span(px, py, y, kx, ky, xa, nxr, nyr):
+    """NDC coordinates of row y's samples xa .. xa + len(nxr) - 1 into nxr, nyr: px (h, w)
+    or (1, w) (one row for all), py (h, w) or (h, 1) (one value per row); kx, ky float32
+    2 / W, 2 / H."""
+    m = nxr.shape[0]
     pxr = px[0] if px.shape[0] == 1 else px[y]
-    for x in range(w):
-        nxr[x] = pxr[x] * kx - ONE
+    for i in range(m):
+        nxr[i] = pxr[xa + i] * kx - ONE
     if py.shape[1] == 1:
         c = ONE - py[y, 0] * ky
-        for x in range(w):
-            nyr[x] = c
+        for i in range(m):
+            nyr[i] = c
     else:
         pyr = py[y]
-        for x in range(w):
-            nyr[x] = ONE - pyr[x] * ky
+        for i in range(m):
+            nyr[i] = ONE - pyr[xa + i] * ky
+
+
+@njit(**INLINE)
+def _ndc_row(px, py, y, kx, ky, nxr, nyr):
+    """_ndc_span of the whole row y (nxr, nyr of the row's length)."""
+    _ndc_span(px, py, y, kx, ky, 0, nxr, nyr)
 
 
 @njit(**INLINE)
@@ -266,22 +273,12 @@ def project_kernel(X, V, P, hw, hh, px, py, depth, ok):
 @njit(**INLINE)
 def _reproject_run(px, py, y, kx, ky, dr, A, M, V, P, hw, hh, xa, xb, rx, ry, rd, ro, sr,
                    nxb, nyb):
-    """reproject_kernel's pixels xa..xb of row y alone (no valid mask): the samples as
-    _ndc_row makes them (into nxb, nyb), unprojected (_surface_px) and projected in one
+    """reproject_kernel's pixels xa..xb of row y alone (no valid mask): the samples by
+    _ndc_span (into nxb, nyb), unprojected (_surface_px) and projected in one
     loop, the sky counted in a loop of its own (as _unproject_row: each loop vectorised);
     returns the run's sky count (its squared norms in sr)."""
     m = xb - xa
-    pxr = px[0] if px.shape[0] == 1 else px[y]
-    for i in range(m):
-        nxb[i] = pxr[xa + i] * kx - ONE
-    if py.shape[1] == 1:
-        c = ONE - py[y, 0] * ky
-        for i in range(m):
-            nyb[i] = c
-    else:
-        pyr = py[y]
-        for i in range(m):
-            nyb[i] = ONE - pyr[xa + i] * ky
+    _ndc_span(px, py, y, kx, ky, xa, nxb[:m], nyb[:m])
     for i in range(m):
         a, b, c, e, q = _surface_px(nxb[i], nyb[i], dr[xa + i], A, M)
         sr[xa + i] = q
