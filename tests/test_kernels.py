@@ -907,6 +907,44 @@ def test_fsr3_field_luminance_shared(h, w):
             fn(c0, c1, v, hi, 0.5, False, luma0=torch.zeros(1, h + 1, w))
 
 
+def test_fsr3_field_bands_and_deferred_sources():
+    """The two-component field scatters work in bands of source rows, every other band in
+    parallel, and defer a source whose footprint leaves its band's zone (half a band each
+    way) to a last pass: fields with runs of 16 equal vectors inside and across zones,
+    vertical motion of a few rows (kept) and of many (deferred), per pixel and per 8 x 8
+    block, equal the reference exactly."""
+    from fgcli.kernels.field import _bands
+    from fgcli.ops import fsr3
+
+    h, w = 160, 72
+    bh, nband = _bands.py_func(h)
+    assert nband >= 8 and bh >= 8
+    c0, c1, _, d = _fsr3_inputs(h, w, 3)
+    v = torch.zeros(2, h, w)
+    v[0] = 2.3  # runs: each row's sources continue each other's footprints
+    v[1, : h // 4] = 3.7  # a few rows down: inside the zone
+    v[1, h // 4: h // 2] = -(bh + 2.5) * 2  # more than half a band at alpha 0.5: deferred
+    v[1, h // 2:, ::5] = (bh * 3.0) * 2
+    v[:, 3 * h // 4:, 20:40] = torch.tensor([-1.4, 0.6])[:, None, None]
+    v[1, bh - 1:bh + 1] = bh / 2.0 * 2  # rows at a band's edge, their footprint at the zone's
+    # the kept and the deferred sources both occur
+    a1 = 0.5
+    y = torch.arange(h, dtype=torch.float32)[:, None]
+    ty = torch.floor((y + v[1] * a1).clamp(-2.0, h + 1.0)).clamp(-1.0, h) + 1
+    ya = (torch.arange(h)[:, None] // bh) * bh
+    inside = (ty >= ya - bh // 2 + 1) & (ty + 1 < torch.clamp(ya + bh, max=h) + bh // 2 + 1)
+    assert inside.any() and not inside.all()
+    hi = fsr3.depth_priority(d)
+    for sec in (False, True):
+        same(f"pixel field {sec}", _kfield(c0, c1, v, hi, 0.5, sec),
+             fsr3.vector_field(c0, c1, v, hi, 0.5, sec))
+    f = v[:, ::8, ::8].contiguous()
+    fh = fsr3.magnitude_priority(f)
+    up = (fsr3.upsample_block_flow(f, h, w, 8), fsr3.upsample_block_flow(fh, h, w, 8))
+    same("block field", _kfield(c0, c1, f, fh, 0.5, False, 64, 0.05, None, 8),
+         fsr3.vector_field(c0, c1, *up, 0.5, False))
+
+
 @pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (5, 9), (1, 1)])
 def test_fsr3_scatters(h, w):
     """FSR 3's footprint scatters (vector field with and without the secondary walk,
@@ -1221,19 +1259,28 @@ def test_fsr3_masks_and_interpolation(h, w):
                 fsr3.interpolate_fsr3(c0, c1, v, one, one, 0.5, of, "display"))
 
 
-def test_half_bits():
-    """The float32 -> binary16 conversion of the packed field entries, against torch's
-    (every finite float32 within +-65504 was checked once, 2.4e9 values, 38 s; here:
-    the boundaries of every exponent, subnormals, ties and random values)."""
+@pytest.mark.parametrize("path", ["int", "f16c"])
+def test_half_bits(path):
+    """The float32 -> binary16 conversion of the packed field entries, against torch's,
+    by both paths: integer arithmetic, and the CPU's conversion where it has F16C (every
+    finite float32 within +-65504 was checked once, 2.4e9 values, 38 s, for the first; for
+    the second, every 7th bit pattern, 3.4e8 values; here: the boundaries of every
+    exponent, subnormals, ties and random values)."""
     import numpy as np
     from numba import njit
 
-    from fgcli.kernels.field import half_bits
+    from fgcli.kernels import field
+    from fgcli.kernels._intrin import HAVE_F16C
+
+    if path == "f16c" and not HAVE_F16C:
+        pytest.skip("no F16C on this CPU")
+    fn = field.half_bits_int if path == "int" else field._half_bits_f16c
+    assert field.half_bits is (field._half_bits_f16c if HAVE_F16C else field.half_bits_int)
 
     @njit
     def conv(src, out):
         for i in range(src.shape[0]):
-            out[i] = half_bits(src[i])
+            out[i] = fn(src[i])
 
     g = torch.Generator().manual_seed(0)
     e = torch.arange(-40, 17, dtype=torch.float32)

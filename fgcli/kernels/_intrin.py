@@ -201,6 +201,9 @@ HAVE_AVX512 = "+avx512f" in _FEATURES
 # permutes and a select per tap and row); a module constant of the kernels (numba's cache
 # keys compiled code by CPU)
 HAVE_WINDOW16 = HAVE_AVX512 or HAVE_AVX2
+# F16C (x86-64 CPUs since ~2012, every one with AVX2): float32 -> binary16 in one
+# instruction (vcvtps2ph), 8 lanes at a time
+HAVE_F16C = "+f16c" in _FEATURES
 
 
 def _fmin_s(bd, b, a):
@@ -946,3 +949,19 @@ def lut16(typingctx, tab, I, j, out):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def half_bits_f16c(typingctx, v):
+    """The IEEE binary16 bits of float32 v, rounded to nearest even, as an int32 in
+    0 .. 65535: LLVM's fptrunc to half, one vcvtps2ph per 8 lanes where the CPU has F16C
+    (HAVE_F16C; without it LLVM would call a runtime function numba does not link).
+    torch's ``.to(torch.float16)`` for every float32 (inf beyond +-65504, NaN as NaN)."""
+    if v != types.float32:
+        return None
+
+    def codegen(context, builder, sig, args):
+        h = builder.fptrunc(args[0], ir.HalfType())
+        return builder.zext(builder.bitcast(h, ir.IntType(16)), ir.IntType(32))
+
+    return types.int32(types.float32), codegen

@@ -13,8 +13,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (F32, INLINE, KERNEL, ROWS, clamp_b, dealt, f2i64, sdepth_b,
                                    smv_b, step_code, step_codes, sval_b)
-from fgcli.kernels._intrin import (HAVE_WINDOW16, atomic_max_u32, bilinear16x1, fmin16x2,
-                                   ld32, mad32, umax16x2)
+from fgcli.kernels._intrin import (HAVE_F16C, HAVE_WINDOW16, atomic_max_u32, bilinear16x1,
+                                   fmin16x2, half_bits_f16c, ld32, mad32, umax16x2)
 from fgcli.kernels.pyramid import U0, U1, _pool_rows
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -101,6 +101,111 @@ def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
             buf[q2] = max(buf[q2], k2[j])
             buf[q3] = max(buf[q3], k3[j])
             j += 1
+
+
+@njit(**INLINE)
+def _bands(h):
+    """The band height and count of the two-component scatters (field_scatter_prio_kernel,
+    field_scatter_block_kernel): about 16 bands (at least 8 rows each), so a source whose
+    footprint lands within half a band (34 rows at 1080p) of its own band is written in
+    the parallel passes."""
+    bh = max(8, (h + 15) // 16)
+    return bh, (h + bh - 1) // bh
+
+
+@njit(**INLINE)
+def _zone(ya, yb, bh, w, nb):
+    """The flat range [zlo, zhi) of a band of source rows ya .. yb - 1 (buffer rows carry
+    the ring's +1) widened by half a band each way, clamped onto the buffer's nb texels
+    (every index is in 0 .. nb - 1): the zones of bands that run together (every other
+    band) do not overlap. int32 (nb < 2**31)."""
+    half = bh // 2
+    w2 = np.int64(w + 2)
+    zlo = max(np.int64(0), (ya - half + 1) * w2)
+    zhi = min(np.int64(nb), (yb + half + 1) * w2)
+    return I32(zlo), I32(zhi)
+
+
+@njit(**INLINE)
+def _scatter_pair(buf0, buf1, px, py, ka, kb, m, h, w, thr, zlo, zhi, q0, dx, dy, tf, inz,
+                  k0, k1, k2, k3, brk):
+    """_scatter_max of m sources into both components' buffers (entries ka into buf0, kb
+    into buf1), the footprints and runs worked out once for both, the sources whose
+    footprint lies in the zone [zlo, zhi) (_zone: no other thread writes there
+    meanwhile) alone: inz[j] = 1 for those. Returns the number of the others (the caller
+    defers them to _scatter_one)."""
+    w2 = I32(w + 2)
+    z = np.uint32(0)
+    nout = 0
+    for j in range(m):
+        xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px[j], py[j], h, w, thr)
+        q = I32(ya * w2 + xa)
+        q0[j] = q
+        dx[j] = xb - xa
+        dy[j] = I32((yb - ya) * w2)
+        tf[j] = I32(t00) | (I32(t10) << I32(1)) | (I32(t01) << I32(2)) | (I32(t11) << I32(3))
+        ok = (q >= zlo) & (I32(yb * w2 + xb) < zhi)
+        inz[j] = I32(ok)
+        nout += np.int64(not ok)
+    _run_counts(q0, dx, dy, brk, m)
+    for c in range(2):
+        buf = buf0 if c == 0 else buf1
+        ky = ka if c == 0 else kb
+        for j in range(m):
+            a = ky[j]
+            f = tf[j]
+            k0[j] = a if (f & I32(1)) != I32(0) else z  # entries are > 0: 0 never wins
+            k1[j] = a if (f & I32(2)) != I32(0) else z
+            k2[j] = a if (f & I32(4)) != I32(0) else z
+            k3[j] = a if (f & I32(8)) != I32(0) else z
+        j = 0
+        while j < m:
+            # 16 sources, one run, in the zone (a run's texels are consecutive: its first
+            # and last footprints bound the others')
+            if j + 16 <= m and brk[j + 15] == brk[j] and (inz[j] & inz[j + 15]) != I32(0):
+                q = q0[j]
+                umax16x2(buf, q, k0, k1, j, dx[j])
+                umax16x2(buf, q + dy[j], k2, k3, j, dx[j])
+                j += 16
+            else:
+                if inz[j] != I32(0):
+                    q = np.uint64(q0[j])
+                    q1 = q + np.uint64(dx[j])
+                    q2 = q + np.uint64(dy[j])
+                    q3 = q2 + np.uint64(dx[j])
+                    buf[q] = max(buf[q], k0[j])
+                    buf[q1] = max(buf[q1], k1[j])
+                    buf[q2] = max(buf[q2], k2[j])
+                    buf[q3] = max(buf[q3], k3[j])
+                j += 1
+    return nout
+
+
+@njit(**INLINE)
+def _defer_row(inz, y, w, dq, base, nd):
+    """Append row y's sources outside the zone (inz[x] == 0) to dq at base + nd (flat
+    source indices, int32); returns the new count."""
+    for x in range(w):
+        dq[base + nd] = I32(y * w + x)
+        nd += np.int64(inz[x] == I32(0))
+    return nd
+
+
+@njit(**INLINE)
+def _scatter_one(buf, px, py, a, h, w, thr):
+    """One source's footprint maxima (entry a) into buf, plainly (the deferred sources:
+    one component per thread)."""
+    xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px, py, h, w, thr)
+    w2 = np.int64(w + 2)
+    z = np.uint32(0)
+    q = np.uint64(ya * w2 + xa)
+    q1 = np.uint64(ya * w2 + xb)
+    q2 = np.uint64(yb * w2 + xa)
+    q3 = np.uint64(yb * w2 + xb)
+    buf[q] = max(buf[q], a if t00 else z)
+    buf[q1] = max(buf[q1], a if t10 else z)
+    buf[q2] = max(buf[q2], a if t01 else z)
+    buf[q3] = max(buf[q3], a if t11 else z)
 
 
 _CHUNK = 2048  # sources per vectorised footprint pass
@@ -304,12 +409,13 @@ _LR, _LG, _LB = F32(0.2126), F32(0.7152), F32(0.0722)  # fgcli.ops.color.REC709_
 
 
 @njit(**INLINE)
-def half_bits(v):
+def half_bits_int(v):
     """IEEE binary16 bits (round to nearest even) of a finite float32 within +-65504, as
     torch's ``.to(torch.float16).view(torch.int16) & 0xFFFF`` (checked against torch for
-    every such float32), as an int32. numba has no float16 type. In 32-bit arithmetic:
-    AVX2 has no float -> int64 conversion, and with one LLVM kept the packing loops at four
-    lanes with scalar conversions."""
+    every such float32), as an int32, in integer arithmetic (half_bits where the CPU has no
+    F16C). numba has no float16 type. In 32-bit arithmetic: AVX2 has no float -> int64
+    conversion, and with one LLVM kept the packing loops at four lanes with scalar
+    conversions."""
     x = np.float32(v).view(np.int32)
     sign = np.int32((x >> 16) & 0x8000)
     a = np.int32(x & 0x7FFFFFFF)
@@ -318,6 +424,18 @@ def half_bits(v):
     sub = np.int32(np.rint(min(abs(v) * F32(16777216.0), F32(1024.0))))
     nrm = np.int32((a + np.int32(0xFFF) + ((a >> 13) & 1) - np.int32(0x38000000)) >> 13)
     return np.int32(sign | (sub if a < np.int32(0x38800000) else nrm))
+
+
+@njit(**INLINE)
+def _half_bits_f16c(v):
+    """half_bits_int's value by the CPU's conversion (fgcli.kernels._intrin.half_bits_f16c);
+    the packing of the field entries, ~0.4 ns per value in integer arithmetic, took ~1 ms
+    of each 1080p scatter that way (Zen 3)."""
+    return half_bits_f16c(np.float32(v))
+
+
+# (a module constant: numba's cache keys compiled code by CPU)
+half_bits = _half_bits_f16c if HAVE_F16C else half_bits_int
 
 
 @njit(**INLINE)
@@ -494,57 +612,93 @@ def field_scatter_block_kernel(vec, hi, sh, lo, a1, thr, buf0, buf1):
     """field_scatter_kernel for a field of block vectors (agreement_block_kernel's): each
     row's sources are made into row buffers as field_scatter_prio_kernel makes them from
     the upsampled blocks (the block's sanitised vector and priority, the pixel's agreement
-    lo (H, W) uint8, positions p + a1 v), then scattered (_scatter_max), one component per
-    thread. A row of blocks' vectors, priorities and column positions are made once."""
+    lo (H, W) uint8, positions p + a1 v), then scattered into both components' buffers
+    (_scatter_pair), in bands as field_scatter_prio_kernel's. A row of blocks' vectors,
+    priorities and column positions are made once per band."""
     h, w = lo.shape
+    nb = buf0.shape[0]
+    for i in prange(nb):
+        buf0[i] = 0
+        buf1[i] = 0
+    bh, nband = _bands(h)
+    dq = np.empty(h * w, dtype=np.int32)
+    ndef = np.zeros(nband, dtype=np.int64)
+    # a source at its own texel (zero vector) writes that texel alone: weight 1 there,
+    # 0 at the other three taps (for 0 <= thr < 1, the reference's tap rule)
+    own = (thr >= F32(0.0)) & (thr < F32(1.0))
+    for phase in range(2):
+        for bi in prange((nband - phase + 1) // 2):
+            band = 2 * np.int64(bi) + phase
+            ya = band * bh
+            yb = min(h, ya + bh)
+            zlo, zhi = _zone(ya, yb, bh, w, nb)
+            PX = np.empty(w, dtype=np.float32)
+            PY = np.empty(w, dtype=np.float32)
+            KA = np.empty(w, dtype=np.uint32)
+            KB = np.empty(w, dtype=np.uint32)
+            V0 = np.empty(w, dtype=np.float32)
+            V1 = np.empty(w, dtype=np.float32)
+            HR = np.empty(w, dtype=np.int32)  # (32-bit packing: see half_bits)
+            q0 = np.empty(w, dtype=np.int32)
+            dx = np.empty(w, dtype=np.int32)
+            dy = np.empty(w, dtype=np.int32)
+            tf = np.empty(w, dtype=np.int32)
+            inz = np.empty(w, dtype=np.int32)
+            k0 = np.empty(w, dtype=np.uint32)
+            k1 = np.empty(w, dtype=np.uint32)
+            k2 = np.empty(w, dtype=np.uint32)
+            k3 = np.empty(w, dtype=np.uint32)
+            brk = np.empty(w, dtype=np.int64)
+            still = False
+            nd = np.int64(0)
+            for y in range(ya, yb):
+                by = y >> sh
+                if y == ya or by != (y - 1) >> sh:  # a new row of blocks: its sources' values
+                    moving = I32(0)
+                    for x in range(w):
+                        xb = np.int64(x) >> sh
+                        V0[x] = smv_b(vec[0, by, xb])
+                        V1[x] = smv_b(vec[1, by, xb])
+                        HR[x] = np.int32(_prio(hi[by, xb], np.int64(0)))
+                        moving |= I32((V0[x] != F32(0.0)) | (V1[x] != F32(0.0)))
+                    for x in range(w):
+                        PX[x] = F32(I32(x)) + V0[x] * a1
+                    still = own & (moving == 0)
+                if still:  # a row of blocks with zero vectors: each source at its own texel
+                    r = (y + 1) * (w + 2) + 1
+                    ra = buf0[r:r + w]
+                    rb = buf1[r:r + w]
+                    for x in range(w):
+                        e = HR[x] | np.int32(lo[y, x])
+                        ra[x] = max(ra[x], _pack(e, V0[x]))
+                        rb[x] = max(rb[x], _pack(e, V1[x]))
+                    continue
+                yf = F32(y)
+                for x in range(w):
+                    e = HR[x] | np.int32(lo[y, x])
+                    KA[x] = _pack(e, V0[x])
+                    KB[x] = _pack(e, V1[x])
+                    PY[x] = yf + V1[x] * a1
+                if _scatter_pair(buf0, buf1, PX, PY, KA, KB, w, h, w, thr, zlo, zhi, q0, dx,
+                                 dy, tf, inz, k0, k1, k2, k3, brk) > 0:
+                    nd = _defer_row(inz, y, w, dq, ya * w, nd)
+            ndef[band] = nd
     for pc in prange(2):
         c = np.int64(pc)
         buf = buf0 if c == 0 else buf1
-        for q in range(buf.shape[0]):
-            buf[q] = 0
-        PX = np.empty(w, dtype=np.float32)
-        PY = np.empty(w, dtype=np.float32)
-        KY = np.empty(w, dtype=np.uint32)
-        V0 = np.empty(w, dtype=np.float32)
-        V1 = np.empty(w, dtype=np.float32)
-        HR = np.empty(w, dtype=np.int32)  # (32-bit packing: see half_bits)
-        q0 = np.empty(w, dtype=np.int32)
-        dx = np.empty(w, dtype=np.int32)
-        dy = np.empty(w, dtype=np.int32)
-        k0 = np.empty(w, dtype=np.uint32)
-        k1 = np.empty(w, dtype=np.uint32)
-        k2 = np.empty(w, dtype=np.uint32)
-        k3 = np.empty(w, dtype=np.uint32)
-        brk = np.empty(w, dtype=np.int64)
-        # a source at its own texel (zero vector) writes that texel alone: weight 1 there,
-        # 0 at the other three taps (for 0 <= thr < 1, the reference's tap rule)
-        own = (thr >= F32(0.0)) & (thr < F32(1.0))
-        still = False
-        for y in range(h):
-            yb = y >> sh
-            if y == 0 or yb != (y - 1) >> sh:  # a new row of blocks: its sources' values
-                moving = I32(0)
-                for x in range(w):
-                    xb = np.int64(x) >> sh
-                    V0[x] = smv_b(vec[0, yb, xb])
-                    V1[x] = smv_b(vec[1, yb, xb])
-                    HR[x] = np.int32(_prio(hi[yb, xb], np.int64(0)))
-                    moving |= I32((V0[x] != F32(0.0)) | (V1[x] != F32(0.0)))
-                for x in range(w):
-                    PX[x] = F32(I32(x)) + V0[x] * a1
-                still = own & (moving == 0)
-            VC = V0 if c == 0 else V1
-            if still:  # a row of blocks with zero vectors: each source at its own texel
-                r = (y + 1) * (w + 2) + 1
-                row = buf[r:r + w]
-                for x in range(w):
-                    row[x] = max(row[x], _pack(HR[x] | np.int32(lo[y, x]), VC[x]))
-                continue
-            yf = F32(y)
-            for x in range(w):
-                KY[x] = _pack(HR[x] | np.int32(lo[y, x]), VC[x])
-                PY[x] = yf + V1[x] * a1
-            _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
+        for band in range(nband):
+            base = band * bh * w
+            for k in range(ndef[band]):
+                i = np.int64(dq[base + k])
+                y = i // w
+                x = i - y * w
+                by = y >> sh
+                xb = np.int64(x) >> sh
+                v0 = smv_b(vec[0, by, xb])
+                v1 = smv_b(vec[1, by, xb])
+                e = np.int32(_prio(hi[by, xb], np.int64(0))) | np.int32(lo[y, x])
+                _scatter_one(buf, F32(I32(x)) + v0 * a1, F32(y) + v1 * a1,
+                             _pack(e, v0 if c == 0 else v1), h, w, thr)
 
 
 @njit(**ROWS)
@@ -647,33 +801,72 @@ def walk_sources_kernel(dist, tw, start, idx, vals):
 def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
     """field_scatter_kernel of entries_prio_kernel's sources: each row's positions
     p + a1 v (a1 = 1 - alpha) and packed entries (prio << 16 | half bits of the sanitised
-    component, the reference's pack_entries) made into row buffers, then scattered
-    (_scatter_max), one component per thread."""
+    component, the reference's pack_entries) made into row buffers, then scattered into
+    both components' buffers at once (_scatter_pair: one footprint per source).
+
+    Bands of source rows (_bands), every other band in parallel, then the rest: a band
+    writes the sources whose footprint lies within its zone (_zone; zones of bands that run
+    together do not overlap), and defers the others to a last pass, one component per
+    thread (_scatter_one). The maximum does not depend on the order of writes, so the
+    result is the same. (One component per thread over the whole frame worked out every
+    footprint twice and used two threads at most: 1080p, Zen 3, captured inputs,
+    8.2 -> see docs/performance.md.)"""
     h, w = prio.shape
+    nb = buf0.shape[0]
+    for i in prange(nb):
+        buf0[i] = 0
+        buf1[i] = 0
+    bh, nband = _bands(h)
+    dq = np.empty(h * w, dtype=np.int32)  # the deferred sources, band b's from b * bh * w
+    ndef = np.zeros(nband, dtype=np.int64)
+    for phase in range(2):
+        for bi in prange((nband - phase + 1) // 2):
+            band = 2 * np.int64(bi) + phase
+            ya = band * bh
+            yb = min(h, ya + bh)
+            zlo, zhi = _zone(ya, yb, bh, w, nb)
+            PX = np.empty(w, dtype=np.float32)
+            PY = np.empty(w, dtype=np.float32)
+            KA = np.empty(w, dtype=np.uint32)
+            KB = np.empty(w, dtype=np.uint32)
+            q0 = np.empty(w, dtype=np.int32)
+            dx = np.empty(w, dtype=np.int32)
+            dy = np.empty(w, dtype=np.int32)
+            tf = np.empty(w, dtype=np.int32)
+            inz = np.empty(w, dtype=np.int32)
+            k0 = np.empty(w, dtype=np.uint32)
+            k1 = np.empty(w, dtype=np.uint32)
+            k2 = np.empty(w, dtype=np.uint32)
+            k3 = np.empty(w, dtype=np.uint32)
+            brk = np.empty(w, dtype=np.int64)
+            nd = np.int64(0)
+            for y in range(ya, yb):
+                yf = F32(y)
+                for x in range(w):
+                    pr = np.int32(prio[y, x])
+                    v0 = smv_b(vec[0, y, x])
+                    v1 = smv_b(vec[1, y, x])
+                    KA[x] = _pack(pr, v0)
+                    KB[x] = _pack(pr, v1)
+                    PX[x] = F32(I32(x)) + v0 * a1
+                    PY[x] = yf + v1 * a1
+                if _scatter_pair(buf0, buf1, PX, PY, KA, KB, w, h, w, thr, zlo, zhi, q0, dx,
+                                 dy, tf, inz, k0, k1, k2, k3, brk) > 0:
+                    nd = _defer_row(inz, y, w, dq, ya * w, nd)
+            ndef[band] = nd
     for pc in prange(2):
         c = np.int64(pc)
         buf = buf0 if c == 0 else buf1
-        for q in range(buf.shape[0]):
-            buf[q] = 0
-        vc = vec[c]
-        PX = np.empty(w, dtype=np.float32)
-        PY = np.empty(w, dtype=np.float32)
-        KY = np.empty(w, dtype=np.uint32)
-        q0 = np.empty(w, dtype=np.int32)
-        dx = np.empty(w, dtype=np.int32)
-        dy = np.empty(w, dtype=np.int32)
-        k0 = np.empty(w, dtype=np.uint32)
-        k1 = np.empty(w, dtype=np.uint32)
-        k2 = np.empty(w, dtype=np.uint32)
-        k3 = np.empty(w, dtype=np.uint32)
-        brk = np.empty(w, dtype=np.int64)
-        for y in range(h):
-            yf = F32(y)
-            for x in range(w):
-                KY[x] = _pack(np.int32(prio[y, x]), smv_b(vc[y, x]))
-                PX[x] = F32(I32(x)) + smv_b(vec[0, y, x]) * a1
-                PY[x] = yf + smv_b(vec[1, y, x]) * a1
-            _scatter_max(buf, PX, PY, KY, w, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
+        for band in range(nband):
+            base = band * bh * w
+            for k in range(ndef[band]):
+                i = np.int64(dq[base + k])
+                y = i // w
+                x = i - y * w
+                v0 = smv_b(vec[0, y, x])
+                v1 = smv_b(vec[1, y, x])
+                _scatter_one(buf, F32(I32(x)) + v0 * a1, F32(y) + v1 * a1,
+                             _pack(np.int32(prio[y, x]), v0 if c == 0 else v1), h, w, thr)
 
 
 @njit(**INLINE)
