@@ -910,8 +910,8 @@ def test_fsr3_field_luminance_shared(h, w):
 def test_fsr3_field_bands_and_deferred_sources():
     """The two-component field scatters work in bands of source rows, every other band in
     parallel, and defer a source whose footprint leaves its band's zone (half a band each
-    way) to a last pass: fields with runs of 16 equal vectors inside and across zones,
-    vertical motion of a few rows (kept) and of many (deferred), per pixel and per 8 x 8
+    way) to a last pass: fields with runs of 16 equal vectors inside and across zones (and
+    of exactly 15), vertical motion of a few rows (kept) and of many (deferred), per pixel and per 8 x 8
     block, equal the reference exactly."""
     from fgcli.kernels.field import _bands
     from fgcli.ops import fsr3
@@ -927,6 +927,8 @@ def test_fsr3_field_bands_and_deferred_sources():
     v[1, h // 2:, ::5] = (bh * 3.0) * 2
     v[:, 3 * h // 4:, 20:40] = torch.tensor([-1.4, 0.6])[:, None, None]
     v[1, bh - 1:bh + 1] = bh / 2.0 * 2  # rows at a band's edge, their footprint at the zone's
+    v[0, 4:8, 15::16] = 7.9  # runs of exactly 15 sources (the 16th breaks each)
+    v[0, 4:8, 46::16] = 7.9  # (and runs starting elsewhere)
     # the kept and the deferred sources both occur
     a1 = 0.5
     y = torch.arange(h, dtype=torch.float32)[:, None]

@@ -132,6 +132,31 @@ def ld_pair(typingctx, arr, i):
     return types.UniTuple(types.float32, 2)(arr, i), codegen
 
 
+@intrinsic
+def run16(typingctx, cont, j):
+    """True when cont[j .. j + 14] are all non-zero (a 1-D C-contiguous uint8 array of at
+    least j + 16 elements; int32-range j >= 0): with cont[k] set where source k + 1
+    continues source k's footprint (the footprint scatters' runs), sources j .. j + 15
+    are one run. One 16-byte load and a compare, where the scatters kept a prefix count of
+    run starts (a serial loop over every source) to test it."""
+    if not (isinstance(cont, types.Array) and cont.dtype == types.uint8 and cont.ndim == 1
+            and cont.layout == "C" and isinstance(j, types.Integer)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        i8, i1 = ir.IntType(8), ir.IntType(1)
+        p = _vec16_ptr(context, builder, sig.args[0], args[0], args[1], sig.args[1], i8)
+        v = builder.load(p, align=1)
+        nz = builder.icmp_unsigned("!=", v, ir.Constant(ir.VectorType(i8, 16), None))
+        nz = builder.or_(nz, ir.Constant(ir.VectorType(i1, 16), [0] * 15 + [1]))
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(i1, [ir.VectorType(i1, 16)]),
+            "llvm.vector.reduce.and.v16i1")
+        return builder.call(fn, [nz])
+
+    return types.boolean(cont, j), codegen
+
+
 def _lanes16(elem, lane, pick, doc):
     """An intrinsic f(buf, q, src, j): buf[q:q + 16] = pick(buf[q:q + 16], src[j:j + 16])
     as one 16-lane vector operation on 1-D C-contiguous arrays of numba type elem (LLVM
