@@ -66,6 +66,21 @@ def _run_flags(q0, dx, dy, cont, m):
 
 
 @njit(**INLINE)
+def _max4(buf, q, dx, dy, k0, k1, k2, k3):
+    """One footprint's maxima: entries k0 .. k3 into its taps q, q + dx, q + dy,
+    q + dy + dx of buf (q >= 0, dx and dy >= 0: unsigned indices, so numba leaves out its
+    negative-index wraparound, three instructions a tap, as splat_kernel)."""
+    q = np.uint64(q)
+    q1 = q + np.uint64(dx)
+    q2 = q + np.uint64(dy)
+    q3 = q2 + np.uint64(dx)
+    buf[q] = max(buf[q], k0)
+    buf[q1] = max(buf[q1], k1)
+    buf[q2] = max(buf[q2], k2)
+    buf[q3] = max(buf[q3], k3)
+
+
+@njit(**INLINE)
 def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk):
     """The footprint scatter of m sources (positions px, py, entries ky: arrays of at least
     m) into buf: their footprints in a vectorised pass into q0, dx, dy, k0 .. k3 (buffers
@@ -93,14 +108,7 @@ def _scatter_max(buf, px, py, ky, m, h, w, thr, q0, dx, dy, k0, k1, k2, k3, brk)
             j += 16
         else:
             # (unsigned indices, all >= 0: no negative-index wraparound, as splat_kernel)
-            q = np.uint64(q0[j])
-            q1 = q + np.uint64(dx[j])
-            q2 = q + np.uint64(dy[j])
-            q3 = q2 + np.uint64(dx[j])
-            buf[q] = max(buf[q], k0[j])
-            buf[q1] = max(buf[q1], k1[j])
-            buf[q2] = max(buf[q2], k2[j])
-            buf[q3] = max(buf[q3], k3[j])
+            _max4(buf, q0[j], dx[j], dy[j], k0[j], k1[j], k2[j], k3[j])
             j += 1
 
 
@@ -170,14 +178,7 @@ def _scatter_pair(buf0, buf1, px, py, ka, kb, m, h, w, thr, zlo, zhi, q0, dx, dy
                 j += 16
             else:
                 if inz[j] != I32(0):
-                    q = np.uint64(q0[j])
-                    q1 = q + np.uint64(dx[j])
-                    q2 = q + np.uint64(dy[j])
-                    q3 = q2 + np.uint64(dx[j])
-                    buf[q] = max(buf[q], k0[j])
-                    buf[q1] = max(buf[q1], k1[j])
-                    buf[q2] = max(buf[q2], k2[j])
-                    buf[q3] = max(buf[q3], k3[j])
+                    _max4(buf, q0[j], dx[j], dy[j], k0[j], k1[j], k2[j], k3[j])
                 j += 1
     return nout
 
@@ -199,14 +200,8 @@ def _scatter_one(buf, px, py, a, h, w, thr):
     xa, xb, ya, yb, t00, t10, t01, t11 = _taps(px, py, h, w, thr)
     w2 = np.int64(w + 2)
     z = np.uint32(0)
-    q = np.uint64(ya * w2 + xa)
-    q1 = np.uint64(ya * w2 + xb)
-    q2 = np.uint64(yb * w2 + xa)
-    q3 = np.uint64(yb * w2 + xb)
-    buf[q] = max(buf[q], a if t00 else z)
-    buf[q1] = max(buf[q1], a if t10 else z)
-    buf[q2] = max(buf[q2], a if t01 else z)
-    buf[q3] = max(buf[q3], a if t11 else z)
+    _max4(buf, ya * w2 + xa, xb - xa, (yb - ya) * w2, a if t00 else z, a if t10 else z,
+          a if t01 else z, a if t11 else z)
 
 
 _CHUNK = 2048  # sources per vectorised footprint pass
@@ -810,8 +805,8 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
     together do not overlap), and defers the others to a last pass, one component per
     thread (_scatter_one). The maximum does not depend on the order of writes, so the
     result is the same. (One component per thread over the whole frame worked out every
-    footprint twice and used two threads at most: 1080p, Zen 3, captured inputs,
-    8.2 -> see docs/performance.md.)"""
+    footprint twice and used two threads at most: 1080p blade, Zen 3, captured inputs,
+    8.53 -> 8.04 ms for the bands alone; docs/performance.md, stop 52.)"""
     h, w = prio.shape
     nb = buf0.shape[0]
     for i in prange(nb):
