@@ -120,6 +120,34 @@ def test_unproject_is_bit_identical(h, w):
                    G.unproject(d, cam, cx, cy, (2 * h, 2 * w)))
 
 
+def test_ray_tables_hold_for_separable_cameras_only():
+    """ray_tables (rays per column and per row instead of per pixel) holds for a
+    perspective camera on the pixel grid, and not for a skewed one, a column whose ray
+    has x = 0 (odd width: the sign of a zero term would count), or samples that are not a
+    grid; unproject and reproject match the reference either way (sky rows included)."""
+    from fgcli.kernels.geom import ray_tables
+
+    rng = np.random.default_rng(11)
+    cases = [("perspective", perspective(60, 1.5, 0.1, 100.0), 24, 36, True),
+             ("orthographic", orthographic(4, 3, 0.1, 50.0), 24, 36, True),
+             ("off-axis", perspective(50, 1.5, 0.1, 100.0, 0.0, (0.2, -0.1)), 24, 36, True),
+             ("skewed", perspective(60, 1.5, 0.1, 100.0, 0.1), 24, 36, False),
+             ("odd width", perspective(60, 1.5, 0.1, 100.0), 24, 35, False)]
+    for name, proj, h, w, holds in cases:
+        cam = (G.look_at(rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)), proj)
+        cam_b = random_camera(rng, w / h)
+        gx, gy = K._grid_half(h, w)
+        kx, ky, A, _ = K._unproject_coefs(cam, (h, w))
+        assert ray_tables(gx, gy, kx, ky, A)[0] == holds, name
+        d = hard_depth(h, w, rng)
+        bits_equal(f"unproject {name}", K.unproject(d, cam), G.unproject(d, cam))
+        same_tree(f"reproject {name}", K.reproject(d, cam, cam_b, (h, w)),
+                  G.project(G.unproject(d, cam), cam_b, (h, w)))
+    px = torch.rand(4, 6, generator=torch.Generator().manual_seed(1)) * 6  # (not a grid)
+    assert not ray_tables(px.numpy(), px.numpy()[:, :1].copy(), *K._unproject_coefs(
+        (np.eye(4), perspective(60, 1.5, 0.1, 100.0)), (4, 6))[:3])[0]
+
+
 def test_sky_passes_skip_spans_without_sky():
     """The sky passes work in spans of SKY_SPAN pixels and skip those with no sky: wide
     rows whose sky lies in a few runs (across span boundaries, at the row's end, a lone

@@ -17,7 +17,8 @@ from numba import njit, prange
 
 from fgcli.kernels._common import (ALL1, F32, I64_MAX, INF, INLINE, KERNEL, ROWS, clamp_b,
                                    f2i64, lut_row, sdepth_b, sflow_b, smv_b, sval_b)
-from fgcli.kernels.geom import _project_px, _surface_px, _unproject_row, copy_row_planes
+from fgcli.kernels.geom import (_project_px, _surface_px, _unproject_row, copy_row_planes,
+                                ray_tables)
 from fgcli.kernels._intrin import HAVE_WINDOW16, atomic_min_i64, bilinear16x3, mad32
 from fgcli.kernels.warp import I32, _bil_pair, _flat_coords, bil_taps
 
@@ -1470,13 +1471,14 @@ def hist_p_kernel(depth, gx, gy, kx, ky, A, M, V, P, hw, hh, mv1, thr2, p, ss, n
     h, w = depth.shape
     wf = F32(w)
     hf = F32(h)
+    RT = ray_tables(gx, gy, kx, ky, A)
     for pr in prange(h):
         y = np.int64(pr)
         o0 = p[0, y]
         o1 = p[1, y]
         o2 = p[2, y]
         o3 = p[3, y]
-        nsky[y] = _unproject_row(gx, gy, y, kx, ky, depth[y], A, M, o0, o1, o2, o3, ss[y])
+        nsky[y] = _unproject_row(gx, gy, y, kx, ky, depth[y], A, M, o0, o1, o2, o3, ss[y], RT)
         for x in range(w):
             qx, qy, _, ok = _project_px(o0[x], o1[x], o2[x], o3[x], V, P, hw, hh)
             a, b = _hist_xp(mv1, y, x)
