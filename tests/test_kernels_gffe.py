@@ -396,6 +396,7 @@ def test_gffe_extrap_numba_equals_torch(orbit_frames, name, monkeypatch):
         return K.unproject(depth, *a, **k)
 
     monkeypatch.setattr(K, "GEOM", G.Geometry(unproject, K.project))
+    monkeypatch.setattr(K, "_EMPTY_LAYERS", {})
     for alpha in (0.5, 1.0):
         a = _run(name, orbit_frames, "numba", alpha)
         b = _run(name, orbit_frames, "torch", alpha)
@@ -404,6 +405,11 @@ def test_gffe_extrap_numba_equals_torch(orbit_frames, name, monkeypatch):
     # the kernels ran: the frame's pixels, and the overscan border's (project_border)
     assert (36, 64) in seen and (44, 72) in seen
     assert any(bool(torch.isinf(f.depth).any()) for f in orbit_frames)  # sky
+    # the first frame's layer 1 is the shared empty one (K._empty_layer): it stays empty
+    assert K._EMPTY_LAYERS
+    for lay in K._EMPTY_LAYERS.values():
+        assert not lay["valid"].any() and not lay["color"].any()
+        assert bool(torch.isinf(lay["depth"]).all()) and lay["depth"].gt(0).all()
 
 
 # ----------------------------------------------------------------------------- fused ops

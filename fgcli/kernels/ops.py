@@ -1985,6 +1985,21 @@ def _splat_layers(layers, cam_bg, cam_x, H, W, sc, h2, w2, holes=None):
 
 
 _NO_FRAGMENTS: dict = {}
+_EMPTY_LAYERS: dict = {}
+
+
+def _empty_layer(h, w):
+    """A new dict holding an empty layer's planes (colour 0, depth +inf, valid False), made
+    once per size and shared, as _no_fragments: a layer's readers (the projections, the
+    fills, the next frame's collection) never write its planes; collect_background writes
+    only the layers it makes itself. Filling layer 1 for every first frame of a sequence
+    cost ~2 ms at 1080p (full-size layer 1)."""
+    r = _EMPTY_LAYERS.get((h, w))
+    if r is None:
+        if len(_EMPTY_LAYERS) >= 4:
+            _EMPTY_LAYERS.clear()
+        r = _EMPTY_LAYERS[(h, w)] = G.empty_layer(h, w, "cpu")
+    return dict(r)
 
 
 def _no_fragments(h, w):
@@ -2083,9 +2098,9 @@ def collect_background(color1, depth1, static, cam1, prev_layers=None, cam_prev=
           "valid": _empty(1, H, W, dtype=torch.bool)}
     l0c, l0d, l0v = l0["color"].numpy(), l0["depth"].numpy()[0], _u8(l0["valid"])[0]
     col_init_kernel(_a(color1), _a(depth1)[0], _u8(static)[0], d1, l0c, l0d, l0v)
+    if not hist:  # (layer 1 of a sequence's first frame: empty; shared, never written)
+        return [l0, _empty_layer(h2, w2)]
     l1 = G.empty_layer(h2, w2, "cpu")
-    if not hist:
-        return [l0, l1]
     l1c, l1d, l1v = l1["color"].numpy(), l1["depth"].numpy()[0], _u8(l1["valid"])[0]
     tol = F32(1.0 + float(depth_tol))
     p0, p1 = prev_layers
