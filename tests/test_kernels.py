@@ -1963,6 +1963,63 @@ def test_scene_change_score_is_the_references_bit_for_bit():
         assert torch.equal(torch.from_numpy(counts), SC._region_counts(lv, bins, regions))
 
 
+def test_scene_levels_tables_give_torchs_levels():
+    """scene_bins_kernel's level of a sampled luma (its float32 bits through the tables of
+    _scene_levels) is torch's round(pow(L, 1/2.2) * (bins - 1)) by both of torch's pow
+    paths (the vectorised body and the scalar tail), on every luma of every window around
+    a level's edge and on random ones; where the two paths disagree (the reference's level
+    would depend on the sample's position) it is left open, and a frame of such samples
+    takes the reference's own pow: the score is still the reference's."""
+    import numpy as np
+
+    from fgcli.kernels.scene import _level, scene_bins_kernel
+    from fgcli.ops import scene as SC
+
+    rng = np.random.default_rng(4)
+    for bins in (32, 16, 7):
+        lut, lo, tab = K._scene_levels(bins)
+        r = tab.shape[1]
+        bits = np.concatenate([(lo[:, None] + np.arange(-3, r + 3)[None, :]).reshape(-1),
+                               rng.integers(0, 0x3F800000 + 1, 20000),
+                               [0, 1, 0x3F800000]]).astype(np.int32)
+        x = torch.from_numpy(bits.view(np.float32).copy())
+        e, nb = 1.0 / 2.2, bins - 1
+        vec = torch.round(torch.pow(torch.cat([x, x[:-x.numel() % 64]]), e)[:x.numel()] * nb)
+        sca = torch.round(torch.pow(torch.stack([x, x], 1).reshape(-1)[::2], e) * nb)
+        vec, sca = vec.to(torch.int64).numpy(), sca.to(torch.int64).numpy()
+        got = np.array([_level(np.int32(b), lut, lo, tab) for b in bits])
+        agree = vec == sca
+        assert np.array_equal(got[agree], vec[agree]), bins
+        assert np.all(got[~agree] == -1), bins
+        assert _level(np.float32(-0.0).view(np.int32), lut, lo, tab) == 0
+        if bins == 32:
+            assert (~agree).sum() > 0  # (this torch's two paths differ somewhere here)
+    # a frame whose every sample has a luma the tables leave open: the reference's pow
+    lut, lo, tab = K._scene_levels(32)
+    k, o = np.argwhere(tab == -1)[0]
+    target = np.int32(lo[k] + o).view(np.float32)
+    c1, c2 = np.float32(0.7152), np.float32(0.0722)
+    g = np.float32(target / c1)  # (0, g, b): luma = 0.7152 g + 0.0722 b, b's step finer
+    while c1 * g > target:
+        g = np.nextafter(g, np.float32(0), dtype=np.float32)
+    b = np.float32((target - c1 * g) / c2)
+    for _ in range(256):
+        lum = c1 * g + c2 * b
+        if lum == target:
+            break
+        b = np.nextafter(b, np.float32(np.inf if lum < target else 0), dtype=np.float32)
+    assert lum == target
+    a = torch.zeros(3, 40, 60)
+    a[1], a[2] = float(g), float(b)
+    b = torch.rand(3, 40, 60, generator=torch.Generator().manual_seed(2))
+    counts = np.zeros((2, 9, 32), dtype=np.float32)
+    assert scene_bins_kernel(a.numpy(), b.numpy(), 1, lut, lo, tab, 3, 32, counts) == 40 * 60
+    assert torch.equal(K.scene_change_score_tensor(a, b, stride=1),
+                       SC.scene_change_score_tensor(a, b, stride=1))
+    counts[:] = 0
+    assert scene_bins_kernel(b.numpy(), b.numpy(), 1, lut, lo, tab, 3, 32, counts) == 0
+
+
 def test_brightness_bounds_decide_as_the_table(monkeypatch):
     """The blend kernel decides most of Eq. 1's brightness tests by slope bounds instead of
     the x^(1/2.4) table; the bounds may decide only where the table agrees, so the output
