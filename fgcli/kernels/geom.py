@@ -16,13 +16,13 @@ element), and the sky pass finishes those pixels.
 A fused unproject + project (no positions written) was measured slower than the two
 kernels one after the other (its larger body vectorises worse), so there is none.
 
-A pixel's ray (unproject's near point and near-to-far vector) costs six of its eight
-divisions. On a grid of samples (one row of x for all rows, one y per row) and a
-projection whose inverse keeps x and y apart (perspective and off-axis ones), the ray's x
-parts depend on the column alone and its y parts on the row alone, bit for bit:
-ray_tables makes them once per call (w + h rays) and the pixel loops read them
-(reproject_kernel on 1080p blade: 5.65 -> 4.26 ms, identical outputs). Any other camera
-or sample layout takes the per-pixel rays.
+A pixel's ray (unproject's near point and near-to-far vector) costs six of the seven
+divisions of its unprojection. On a grid of samples (one row of x for all rows, one y per
+row) and a projection whose inverse keeps x and y apart (perspective, off-axis,
+orthographic), the ray's x parts depend on the column alone and its y parts on the row
+alone, bit for bit: ray_tables makes them once per call (w + h rays) and the pixel loops
+read them (reproject_kernel on 1080p blade: 5.65 -> 4.26 ms, identical outputs). Any other
+camera or sample layout takes the per-pixel rays.
 
 The per-pixel bodies are selects, no branches (they vectorise). The matrix coefficients
 come in as tuples of float32 scalars (fgcli.kernels.ops computes them in float64 exactly as
@@ -207,8 +207,9 @@ def _unproject_row(px, py, y, kx, ky, dr, A, M, o0, o1, o2, o3, sr, RT):
     and sr (the squared norms; the frame's rows or row buffers); returns its sky pixels'
     count (counted in a loop of its own: a reduction in the pixel loop stops it
     vectorising). RT: ray_tables(px, py, kx, ky, A) (when it holds, the rays come from it:
-    7 of a pixel's 8 divisions gone). Inlined by the kernels that unproject a row
-    (unproject_kernel, reproject_kernel, gffe.hist_p_kernel)."""
+    6 of a pixel's 7 divisions gone; the two loops are written out, as in _reproject_run,
+    so that each reads its rays as plain loads or scalars and vectorises). Inlined by the
+    kernels that unproject a row (unproject_kernel, reproject_kernel, gffe.hist_p_kernel)."""
     w = dr.shape[0]
     ok, CN0, CV0, RN1, RV1, K = RT
     if ok:
