@@ -304,7 +304,8 @@ def unproject_sky_kernel(depth, px, py, kx, ky, A, M, nrm, y0, out, older):
         y = y0 + r
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
-        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        if not RT[0]:  # (the per-pixel rays' samples; with the tables none are read)
+            _ndc_row(px, py, y, kx, ky, nxr, nyr)
         nr = nrm[r]
         # directions into span buffers, then merged: the merge in the same loop (reading
         # and writing out) stops it vectorising (3x slower); spans without sky are skipped
@@ -505,7 +506,8 @@ def reproject_sky_kernel(depth, px, py, kx, ky, A, M, V, P, hw, hh, nrm, y0, opx
             continue
         nxr = np.empty(w, dtype=np.float32)
         nyr = np.empty(w, dtype=np.float32)
-        _ndc_row(px, py, y, kx, ky, nxr, nyr)
+        if not RT[0]:  # (the per-pixel rays' samples; with the tables none are read)
+            _ndc_row(px, py, y, kx, ky, nxr, nyr)
         nr = nrm[r]
         t0 = np.empty(SKY_SPAN, dtype=np.float32)
         t1 = np.empty(SKY_SPAN, dtype=np.float32)
