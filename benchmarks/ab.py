@@ -72,12 +72,15 @@ def export(rev: str) -> str:
     return base
 
 
-def blade_frames(size: str, times):
+def blade_frames(size: str, times, mv_step=None):
     """The benchmark's frames: the bundled blade scene rendered at 1/4 of size (WxH) at
-    each (time, previous time) of times and upscaled (nearest; vectors scaled)."""
+    each (time, previous time) of times and upscaled (nearest; vectors scaled), the vectors
+    rounded first as `fgen synth` writes them (mv_step: None = its 2**-10 px, 0 = the
+    tracer's unrounded ones; benchmarks/stages.py --mv-step)."""
     import torch
 
     from fgcli.synth import load_scene, render
+    from fgcli.synth.sequence import MV_STEP, written_vectors
 
     W, H = (int(v) for v in size.lower().split("x"))
     scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"),
@@ -86,7 +89,8 @@ def blade_frames(size: str, times):
     def up(f):
         def u(x, k=1.0):
             return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
+        mv = written_vectors(f.mv, MV_STEP if mv_step is None else mv_step)
+        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(mv, W / (W // 4)),
                          normal=None, albedo=None, roughness=None, alpha=None)
 
     return [up(render(scene, t, tp, spp=2)).replace(number=i) for i, (t, tp) in enumerate(times)]
@@ -101,6 +105,9 @@ def main():
                     help="consecutive pairs, each version's state carried over")
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--backend", default="numba")
+    ap.add_argument("--mv-step", type=float, default=None, metavar="PX",
+                    help="the blade frames' vectors rounded to PX (default: as fgen synth "
+                         "writes them, 2**-10; 0: unrounded; benchmarks/stages.py --mv-step)")
     ap.add_argument("--input", default=None, metavar="FOLDER",
                     help="frames from this EXR sequence instead of the blade scene")
     args = ap.parse_args()
@@ -131,7 +138,7 @@ def main():
         seq = [reader.read(n).replace(normal=None, albedo=None, roughness=None, alpha=None)
                for n in reader.numbers[:len(times)]]
     else:
-        seq = blade_frames(args.size, times)
+        seq = blade_frames(args.size, times, args.mv_step)
     sides = {"old": (P_old, make_ctx_old, RunState_old), "new": (P_new, make_ctx, RunState)}
     print(f"| pipeline | mode | {args.rev} ms (min) | this checkout ms (min) | new / old |")
     print("|---|---|---|---|---|")

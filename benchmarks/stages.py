@@ -5,7 +5,9 @@
                                 [--input FOLDER [--frames RANGE]]
 
 Frames come from the bundled `blade` scene rendered at the benchmark size (fast movers,
-disocclusions: the expensive case). By default every generated frame comes from the same
+disocclusions: the expensive case; a static camera), its vectors rounded to 1/1024 px as
+`fgen synth` writes them (`--mv-step`): the static set's vectors are exactly zero, as in
+the shipped sample data and a rasteriser's output. By default every generated frame comes from the same
 pair with no state (each as a sequence's first frame); `--sequence` generates from
 consecutive pairs with the run's state carried over, the steady state `fgen` reaches on a
 sequence (GFFE's history and background layers, FSR 3's memoised luminance). `--input`
@@ -99,6 +101,12 @@ def main():
     ap.add_argument("--input", default=None, metavar="FOLDER",
                     help="frames from this EXR sequence (its first frames, or --frames) "
                          "instead of the rendered scene")
+    ap.add_argument("--mv-step", type=float, default=None, metavar="PX",
+                    help="the rendered scene's motion vectors are rounded to multiples of PX "
+                         "(a power of two) before the upscale, as `fgen synth` writes them "
+                         "(default 2**-10: static surfaces get exact zeros, as in every file "
+                         "fgen synth writes and a rasteriser's vectors); 0: the tracer's "
+                         "unrounded float32 vectors (~1e-5 px of noise at static pixels)")
     ap.add_argument("--frames", default=None, metavar="RANGE",
                     help="with --input: the frames to use, oiiotool style (1-3, 1001-1010)")
     ap.add_argument("--json", default=None, metavar="FILE",
@@ -112,6 +120,7 @@ def main():
     from fgcli.pipeline import Timings, run_stages
     from fgcli.runner import RunState, make_ctx
     from fgcli.synth import load_scene, render
+    from fgcli.synth.sequence import MV_STEP, written_vectors
 
     from fgcli.runner import check_device
 
@@ -130,10 +139,12 @@ def main():
         seq = [reader.read(n).replace(normal=None, albedo=None, roughness=None, alpha=None)
                for n in reader.numbers[:n_frames]]
         W, H = reader.width, reader.height
+        step = None  # (the files' own vectors)
         source = (f"frames {reader.numbers[0]}-{reader.numbers[n_frames - 1]} of "
                   f"{args.input} ({reader.info.layout} layout)")
     else:
         W, H = (int(v) for v in args.size.lower().split("x"))
+        step = MV_STEP if args.mv_step is None else args.mv_step
         # render at 1/4 size and upscale (nearest; vectors x4): same motion structure, fast
         scene = load_scene(args.scene, size=(W // 4, H // 4))
         t0 = time.perf_counter()
@@ -145,13 +156,16 @@ def main():
         def up(f):
             def u(x, k=1.0):
                 return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-            return f.replace(color=u(f.color), depth=u(f.depth), mv=u(f.mv, W / (W // 4)),
+            mv = written_vectors(f.mv, step)
+            return f.replace(color=u(f.color), depth=u(f.depth), mv=u(mv, W / (W // 4)),
                              normal=None, albedo=None, roughness=None, alpha=None)
 
         # (GFFE tracks once per rendered frame number)
         seq = [up(f).replace(number=i) for i, f in enumerate(small)]
         source = (f"frames from {os.path.basename(args.scene)} rendered at 1/4 size and "
-                  f"upscaled (render {render_ms:.0f} ms/frame, not counted)")
+                  f"upscaled, vectors " + (f"rounded to {step:g} px as fgen synth writes "
+                                           "them" if step else "unrounded") +
+                  f" (render {render_ms:.0f} ms/frame, not counted)")
     host1 = seq[1]
     if cuda:
         seq = [f.to(dev) for f in seq]
@@ -229,6 +243,7 @@ def main():
 
     backends = list(dict.fromkeys(resolve(b, dev) for b in backends))  # CUDA: torch only
     result = {"size": [W, H], "sequence": bool(args.sequence), "frames": source,
+              "mv_step": step,
               "threads": torch.get_num_threads(), "torch": torch.__version__,
               "device": torch.cuda.get_device_name(dev) if cuda else "cpu",
               "cpu": cpu_model(), "openmp": openmp_env(),

@@ -18,6 +18,7 @@ def test_stages_benchmark_sequence_mode(tmp_path):
     assert "a sequence (state carried)" in r.stdout
     j = json.loads(out.read_text())
     assert j["sequence"] is True
+    assert j["mv_step"] == 2.0 ** -10  # (the rendered frames' vectors, as fgen synth writes)
     # what the figures depend on besides the code: the CPU and the OpenMP wait settings
     assert j["cpu"] and ("family" in j["cpu"] or not os.path.exists("/proc/cpuinfo"))
     assert j["openmp"]["OMP_WAIT_POLICY"] == os.environ.get("OMP_WAIT_POLICY", "PASSIVE")
@@ -66,3 +67,28 @@ def test_ab_benchmark_runs_two_versions(tmp_path):
             if f.endswith(".py"):
                 text = open(os.path.join(d, f), encoding="utf-8").read()
                 assert "from fgcli." not in text and "import fgcli\n" not in text, f
+
+
+def test_benchmark_frames_have_the_written_vectors():
+    """The benchmarks' blade frames carry the vectors `fgen synth` writes (rounded to 1/1024
+    px: the static set's are exactly zero, as in the shipped sample data), not the tracer's
+    unrounded float32 ones, whose ~1e-5 px of noise at every static pixel no file holds and
+    which would keep every zero-vector path of the kernels idle."""
+    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+    try:
+        from ab import blade_frames
+    finally:
+        sys.path.pop(0)
+    import torch
+
+    from fgcli.synth.sequence import written_vectors
+
+    times = [(3.0, 2.0), (4.0, 3.0)]
+    raw = blade_frames("128x72", times, mv_step=0)
+    out = blade_frames("128x72", times)
+    for r, o in zip(raw, out):
+        assert torch.equal(o.color, r.color) and torch.equal(o.depth, r.depth)
+        # the upscale (x4, nearest) of the rounded vectors: multiples of 4 / 1024 px
+        assert torch.equal(o.mv, written_vectors(r.mv / 4.0) * 4.0)
+        static = o.mv.eq(0).all(0)
+        assert static.float().mean() > 0.5  # the set and the sky stand still

@@ -75,6 +75,17 @@ def _prepare(folder: str, overwrite: bool, keep: set[str], scene: Scene) -> Outp
 MV_STEP = 2.0 ** -10  # written motion vectors are rounded to 1/1024 pixel
 
 
+def written_vectors(mv: torch.Tensor, step: float = MV_STEP) -> torch.Tensor:
+    """The motion vectors as render_sequence writes them: rounded to multiples of step (a
+    power of two, so exact in float32; 0 keeps every bit). The tracer's vectors carry
+    float32 noise below a thousandth of a pixel (a static surface under an unchanged camera
+    reprojects to its pixel within ~1e-5 px, not exactly); rounded, they are exactly zero
+    there, as a rasteriser's are (the same vertex through the same matrices)."""
+    if not step:
+        return mv
+    return torch.round(mv * (1.0 / step)) * step
+
+
 def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_factor: int = 2,
                     progress: bool = True, overwrite: bool = False, spp: int | None = None,
                     mv_step: float = MV_STEP) -> dict:
@@ -115,8 +126,7 @@ def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_fa
         for role, num, t, prev_t in jobs:
             frame = render(scene, t, prev_t, spp=spp, role=role, number=num)
             frame.time = float(num)
-            if mv_step:
-                frame.mv = torch.round(frame.mv * (1.0 / mv_step)) * mv_step
+            frame.mv = written_vectors(frame.mv, mv_step)
             attrs = {
                 "fgen:synth_scene": scene.name,
                 "fgen:synth_hash": scene.hash,
