@@ -1083,6 +1083,47 @@ def test_fsr3_field_scatter_runs():
                 same("depth runs", k, r)
 
 
+@pytest.mark.parametrize("h,w", [(37, 53), (72, 128), (12, 16)])
+def test_fsr3_static_rows(h, w):
+    """Rows of zero vectors (the static parts of a frame) take the kernels' own-texel paths
+    (each pixel's taps on itself: the disocclusion masks, the depth reconstruction's two
+    scatters, the game field's scatter): +0 and -0 rows, a NaN (sanitised to 0; a moving
+    row for the masks) or a subnormal in an otherwise zero row, rows of short vectors
+    (zeroed by the depth reconstruction), with NaN, inf, 0 and -0 depths, beside moving
+    rows whose footprints land in them; tap thresholds outside [0, 1) take the general
+    path. Against the reference, exactly."""
+    from fgcli.ops import fsr3
+
+    c0, c1, _, d = _fsr3_inputs(h, w, 7 * h + w)
+    g = torch.Generator().manual_seed(h * w)
+    v = torch.randn(2, h, w, generator=g) * 2.0  # (moving rows reach the rows beside them)
+    v[:, 0::3] = 0.0
+    v[1, 0::6] = -0.0
+    v[0, 3::9, w // 2] = NAN
+    v[1, 6::9, 0] = 1e-45
+    v[:, 1::9] = 0.04  # shorter than short_mv
+    d = d.clone()
+    d[0, ::3, ::5] = NAN
+    d[0, ::3, 1::7] = INF
+    d[0, 3::6, 2::9] = 0.0
+    d[0, ::6, 3::11] = -0.0
+    assert int((v == 0).all(0).all(1).sum()) >= 2  # (rows the own-texel paths take)
+    dp = d.flip(-1).clone()
+    dp[0, ::4, ::3] = 0.0
+    for a in (0.5, 0.3, 0.0, 1.0):
+        same_result(f"masks a={a}", K.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4),
+                    fsr3.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4))
+        for tt in (0.05, 0.0, 1.0, -0.5):
+            for kr, r in zip(K.reconstruct_depths(d, v, a, tap_threshold=tt),
+                             fsr3.reconstruct_depths(d, v, a, tap_threshold=tt)):
+                same(f"depths a={a} thr={tt}", kr, r)
+            for sec in (False, True):
+                same(f"game field a={a} thr={tt} sec={sec}",
+                     K.game_vector_field(c0, c1, v, d, a, sec, tap_threshold=tt).to(
+                         torch.int64),
+                     fsr3.game_vector_field(c0, c1, v, d, a, sec, tap_threshold=tt))
+
+
 def test_fsr3_walk_over_threads():
     """The secondary walk with both threads writing the fields (atomic maxima, nothing
     written at primary texels): a frame of 128 rows (every chunk of the parallel loop

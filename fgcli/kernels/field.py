@@ -322,7 +322,9 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
     Python thread by half). 16 sources continuing each other's footprints one texel to
     the right (field_scatter_kernel's runs) take four 16-lane minima (fgcli.kernels.
     _intrin.fmin16; the sanitised depths hold no NaN, so the minimum is unique): 8.6 ->
-    7.5 ms per 1080p pair on the benchmark's frames, in one process."""
+    7.5 ms per 1080p pair on the benchmark's frames, in one process. A row whose vectors
+    are all zero once the short ones are zeroed (the static parts of a frame) writes each
+    source's depth into its own texel, no footprint worked out."""
     h, w = depth.shape
     h32 = I32(h)
     w32 = I32(w)
@@ -333,6 +335,9 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
         for q in range(h * w):
             bufs[q] = inf
         k = ks[t]
+        # a source on its own texel (zero vector, k finite: p + 0 k = p) writes that texel
+        # alone: weight 1 there, 0 at the other three taps (for 0 <= thr < 1, the tap rule)
+        own = (thr >= F32(0.0)) & (thr < F32(1.0)) & (abs(k) < inf)
         q0 = np.empty(w, dtype=np.int32)
         dx = np.empty(w, dtype=np.int32)
         dy = np.empty(w, dtype=np.int32)
@@ -355,6 +360,16 @@ def depth_scatter_pair_kernel(depth, mv, lens, short, squared, ks, thr, out):
             else:
                 for x in range(w):
                     kp[x] = F32(1.0) if lens[y, x] >= short else F32(0.0)
+            if own:
+                moving = I32(0)
+                for x in range(w):
+                    moving |= I32((smv_b(mx[x]) * kp[x] != F32(0.0)) |
+                                  (smv_b(my[x]) * kp[x] != F32(0.0)))
+                if moving == 0:  # a row of zero (or zeroed short) vectors: own texels
+                    r = y * w
+                    for x in range(w):
+                        bufs[r + x] = min(bufs[r + x], sdepth_b(dr[x]))
+                    continue
             for x in range(w):
                 vx = smv_b(mx[x])
                 vy = smv_b(my[x])
@@ -806,12 +821,16 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
     thread (_scatter_one). The maximum does not depend on the order of writes, so the
     result is the same. (One component per thread over the whole frame worked out every
     footprint twice and used two threads at most: 1080p blade, Zen 3, captured inputs,
-    8.53 -> 8.04 ms for the bands alone; docs/performance.md, stop 52.)"""
+    8.53 -> 8.04 ms for the bands alone; docs/performance.md, stop 52.) A row of zero
+    vectors (the static parts of a frame) writes each source into its own texel, as
+    field_scatter_block_kernel's rows of still blocks."""
     h, w = prio.shape
     nb = buf0.shape[0]
     for i in prange(nb):
         buf0[i] = 0
         buf1[i] = 0
+    # (field_scatter_block_kernel's rule for a source on its own texel, a1 finite)
+    own = (thr >= F32(0.0)) & (thr < F32(1.0)) & (abs(a1) < F32(np.inf))
     bh, nband = _bands(h)
     dq = np.empty(h * w, dtype=np.int32)  # the deferred sources, band b's from b * bh * w
     ndef = np.zeros(nband, dtype=np.int64)
@@ -838,6 +857,7 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
             nd = np.int64(0)
             for y in range(ya, yb):
                 yf = F32(y)
+                moving = I32(0)
                 for x in range(w):
                     pr = np.int32(prio[y, x])
                     v0 = smv_b(vec[0, y, x])
@@ -846,6 +866,15 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
                     KB[x] = _pack(pr, v1)
                     PX[x] = F32(I32(x)) + v0 * a1
                     PY[x] = yf + v1 * a1
+                    moving |= I32((v0 != F32(0.0)) | (v1 != F32(0.0)))
+                if own and moving == 0:  # a row of zero vectors: each source at its own texel
+                    r = (y + 1) * (w + 2) + 1
+                    ra = buf0[r:r + w]
+                    rb = buf1[r:r + w]
+                    for x in range(w):
+                        ra[x] = max(ra[x], KA[x])
+                        rb[x] = max(rb[x], KB[x])
+                    continue
                 if _scatter_pair(buf0, buf1, PX, PY, KA, KB, w, h, w, thr, zlo, zhi, q0, dx,
                                  dy, tf, inz, k0, k1, k2, k3, brk) > 0:
                     nd = _defer_row(inz, y, w, dq, ya * w, nd)

@@ -127,8 +127,11 @@ def _tap_mask_t(T, i, x, y, zt, thr, w, h, wm1, hm1):
 @njit(**ROWS)
 def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, threshold, mp, mc, XA,
                        XB, YA, YB, T):
-    """disocclusion_kernel's rows ya..yb (one chunk of its parallel loop)."""
+    """disocclusion_kernel's rows ya..yb (one chunk of its parallel loop). A row of zero
+    vectors (_moving_row: +-0; NaN counts as moving) reads each pixel's own depths, no taps
+    (where a and b are finite: q + 0 a = q)."""
     h, w = depth_t.shape
+    own = (abs(a) < F32(np.inf)) & (abs(b) < F32(np.inf))
     wm1 = F32(w - 1)
     hm1 = F32(h - 1)
     w32 = I32(w)
@@ -136,6 +139,17 @@ def _disocclusion_rows(ya, yb, depth_t, depth_prev, depth1, vec, a, b, thr, thre
     nblk = w // 16
     for y in range(ya, yb):
         yf = F32(y)
+        if own and _moving_row(vec, y, w) == 0:
+            # a row of zero vectors: each pixel's taps lie on itself, where the weight is 1
+            # and at the other three 0 (0 * a flag adds +0.0), so its sum is its own tap's
+            # flag (on screen)
+            for x in range(w):
+                zt = sdepth_b(depth_t[y, x])
+                mp[y, x] = F32(_tap(sdepth_b(depth_prev[y, x]), F32(I32(x)), yf, F32(1.0), zt,
+                                    thr, wm1, hm1) >= threshold)
+                mc[y, x] = F32(_tap(sdepth_b(depth1[y, x]), F32(I32(x)), yf, F32(1.0), zt,
+                                    thr, wm1, hm1) >= threshold)
+            continue
         if WINDOW16:  # the taps into row buffers, fetched 16 pixels at a time, then the sums
             for x in range(w):
                 _mask_taps(F32(I32(x)) + smv_b(vec[0, y, x]) * a, yf + smv_b(vec[1, y, x]) * a, x,
