@@ -118,6 +118,22 @@ def hard_cases():
     f["c0"][:, 5, :3] = INF
     f["c1"][:, 6, 2:6] = -INF
     out.append(("HDR / NaN / inf colour", f))
+    f = random_frames(24, 40, 11)
+    g = torch.Generator().manual_seed(12)
+    # static rows (each source onto its own pixel after the 3x3 dilation: zero, -0 and
+    # sub-pixel vectors) that near sources of moving rows land in, from rows before them
+    # (written first within a band) and after; sky, far and NaN depths in the static rows
+    mv = torch.zeros(2, 24, 40)
+    mv[1, 2::8] = torch.where(torch.arange(40) % 2 == 0, 5.0, -5.0)  # (down / up ~2 rows)
+    mv[0, 2::8] = torch.randn(3, 40, generator=g) * 0.5
+    mv[0, 6::8] = -0.0
+    mv[:, 5::8] = 0.2
+    f["mv1"], f["mv0"] = mv, mv.clone()
+    f["d1"] = 40.0 + torch.rand(1, 24, 40, generator=g) * 10.0
+    f["d1"][0, 2::8] = 0.5 + torch.rand(3, 40, generator=g) * 0.1
+    f["d1"][0, 4::8, ::3] = INF
+    f["d1"][0, 7, 5] = NAN
+    out.append(("static rows", f))
     return out
 
 
