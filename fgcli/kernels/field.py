@@ -790,11 +790,11 @@ def entries_prio_kernel(l0, c1, vec, hi, a1, gxn, gyn, kx, ky, prio, sec, dist, 
 
 
 @njit(**KERNEL)
-def walk_sources_kernel(dist, tw, start, idx, vals):
+def walk_sources_kernel(dist, tw, start, vals):
     """The squared lengths at or above tw (entries_prio_kernel's walking pixels) listed in
-    row order: row y's from start[y] (the prefix sums of its cnt), flat index into idx
-    (int64) and value into vals (float32), for torch.sqrt of those alone (a few percent of
-    the frame) instead of the whole plane."""
+    row order into vals (float32): row y's from start[y] (the prefix sums of its cnt), for
+    torch.sqrt of those alone (a few percent of the frame on a still camera) instead of
+    the whole plane; walk_back_kernel puts the roots back."""
     h, w = dist.shape
     for py in prange(h):
         y = np.int64(py)
@@ -803,9 +803,30 @@ def walk_sources_kernel(dist, tw, start, idx, vals):
             continue
         for x in range(w):
             if dist[y, x] >= tw:
-                idx[k] = y * w + x
                 vals[k] = dist[y, x]
                 k += 1
+
+
+@njit(**KERNEL)
+def walk_back_kernel(dist, tw, start, vals, rmax):
+    """walk_sources_kernel's values (their roots by now) back into dist at the pixels they
+    came from (the same scan: dist at or above tw, row order) and each row's largest in
+    rmax (h,) (0 where none; the roots are finite: lengths of sanitised vectors). A scatter
+    by a list of flat indices (numpy's fancy assignment) took ~3 ms per 1080p frame with
+    the camera moving, where nearly every pixel walks."""
+    h, w = dist.shape
+    for py in prange(h):
+        y = np.int64(py)
+        k = start[y]
+        m = F32(0.0)
+        if start[y + 1] != k:
+            for x in range(w):
+                if dist[y, x] >= tw:
+                    v = vals[k]
+                    dist[y, x] = v
+                    m = v if v > m else m
+                    k += 1
+        rmax[y] = m
 
 
 @njit(**KERNEL)
