@@ -72,28 +72,34 @@ def export(rev: str) -> str:
     return base
 
 
-def blade_frames(size: str, times, mv_step=None):
-    """The benchmark's frames: the bundled blade scene rendered at 1/4 of size (WxH) at
-    each (time, previous time) of times and upscaled (nearest; vectors scaled), the vectors
-    rounded first as `fgen synth` writes them (mv_step: None = its 2**-10 px, 0 = the
-    tracer's unrounded ones; benchmarks/stages.py --mv-step)."""
+def upscaled(f, W: int, H: int, mv_step=None):
+    """A frame rendered at 1/4 of W x H brought to W x H as the benchmarks use it: nearest
+    upscale, vectors scaled, and rounded first as `fgen synth` writes them (mv_step: None =
+    its 2**-10 px, 0 = the tracer's unrounded ones; benchmarks/stages.py --mv-step); the
+    G-buffers dropped."""
     import torch
 
-    from fgcli.synth import load_scene, render
     from fgcli.synth.sequence import MV_STEP, written_vectors
+
+    def u(x, k=1.0):
+        return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
+
+    mv = written_vectors(f.mv, MV_STEP if mv_step is None else mv_step)
+    return f.replace(color=u(f.color), depth=u(f.depth), mv=u(mv, W / (W // 4)),
+                     normal=None, albedo=None, roughness=None, alpha=None)
+
+
+def blade_frames(size: str, times, mv_step=None):
+    """The benchmark's frames: the bundled blade scene rendered at 1/4 of size (WxH) at
+    each (time, previous time) of times, upscaled (upscaled: vectors as fgen synth writes
+    them unless mv_step says otherwise)."""
+    from fgcli.synth import load_scene, render
 
     W, H = (int(v) for v in size.lower().split("x"))
     scene = load_scene(os.path.join(ROOT, "sample_data", "scenes", "blade.toml"),
                        size=(W // 4, H // 4))
-
-    def up(f):
-        def u(x, k=1.0):
-            return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-        mv = written_vectors(f.mv, MV_STEP if mv_step is None else mv_step)
-        return f.replace(color=u(f.color), depth=u(f.depth), mv=u(mv, W / (W // 4)),
-                         normal=None, albedo=None, roughness=None, alpha=None)
-
-    return [up(render(scene, t, tp, spp=2)).replace(number=i) for i, (t, tp) in enumerate(times)]
+    return [upscaled(render(scene, t, tp, spp=2), W, H, mv_step).replace(number=i)
+            for i, (t, tp) in enumerate(times)]
 
 
 def main():

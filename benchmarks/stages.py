@@ -120,7 +120,9 @@ def main():
     from fgcli.pipeline import Timings, run_stages
     from fgcli.runner import RunState, make_ctx
     from fgcli.synth import load_scene, render
-    from fgcli.synth.sequence import MV_STEP, written_vectors
+    from fgcli.synth.sequence import MV_STEP
+
+    from ab import upscaled  # (this folder: the frames as ab.py and kernels.py make them)
 
     from fgcli.runner import check_device
 
@@ -153,15 +155,8 @@ def main():
         small = [render(scene, t, tp, spp=2) for t, tp in times]
         render_ms = (time.perf_counter() - t0) * 1000 / len(small)
 
-        def up(f):
-            def u(x, k=1.0):
-                return torch.nn.functional.interpolate(x[None], size=(H, W), mode="nearest")[0] * k
-            mv = written_vectors(f.mv, step)
-            return f.replace(color=u(f.color), depth=u(f.depth), mv=u(mv, W / (W // 4)),
-                             normal=None, albedo=None, roughness=None, alpha=None)
-
         # (GFFE tracks once per rendered frame number)
-        seq = [up(f).replace(number=i) for i, f in enumerate(small)]
+        seq = [upscaled(f, W, H, step).replace(number=i) for i, f in enumerate(small)]
         source = (f"frames from {os.path.basename(args.scene)} rendered at 1/4 size and "
                   f"upscaled, vectors " + (f"rounded to {step:g} px as fgen synth writes "
                                            "them" if step else "unrounded") +
