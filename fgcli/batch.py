@@ -33,6 +33,7 @@ class RunTask:
     scene_cuts: str = "auto"
     cut_threshold: float | None = None
     backend: str = "auto"  # --backend: auto | torch | numba
+    scale: int = 1  # --scale: output resolution / input resolution
 
     def label(self) -> str:
         c = f" chunk {self.chunk[0]}/{self.chunk[1]}" if self.chunk else ""
@@ -91,7 +92,8 @@ def open_task(task: RunTask):
     p = pl.load(task.pipeline)
     if task.sets:
         p = p.with_overrides(list(task.sets), label=p.label)
-    reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern, **task.in_kw)
+    reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern,
+                        gbuffer_frames=task.scale > 1, **task.in_kw)
     out = open_output(task.out_dir, reader, **task.out_kw)
     return reader, out, p
 
@@ -117,7 +119,7 @@ def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
                            out_layout=out.layout, half=out.half, compression=out.compression,
                            command=task.command, chunk=task.chunk, on_frame=on_frame,
                            scene_cuts=task.scene_cuts, cut_threshold=task.cut_threshold,
-                           backend=task.backend)
+                           backend=task.backend, scale=task.scale)
     summary["task"] = task.label()
     return summary
 
@@ -164,19 +166,37 @@ class EvalTask:
     cut_threshold: float | None = None
     backend: str = "auto"  # --backend: auto | torch | numba
     region: str = "data"  # --region: data | display
+    scale: int = 1  # --scale: output resolution / input resolution
 
     def label(self) -> str:
         return self.name or self.in_dir
 
 
-def eval_source(in_dir: str, gt_dir: str | None, factor: int | None, in_kw: dict):
+def eval_source(in_dir: str, gt_dir: str | None, factor: int | None, in_kw: dict,
+                scale: int = 1):
     """The frames to score: IN + GT, IN held out by FACTOR, or a folder with input/ and gt/
-    (the bundled scenes); FACTOR 2 when nothing says otherwise."""
+    (the bundled scenes); FACTOR 2 when nothing says otherwise. scale > 1: IN is a
+    low-resolution render and GT its ground truth at scale x its size (--gt, or a folder
+    with input/ and gt/)."""
     from fgcli import evaluate as ev
     from fgcli.io.options import open_input
 
     if gt_dir and factor:
         raise UsageError("use either --gt or --factor")
+    if scale > 1:
+        if factor:
+            raise UsageError("--scale needs a ground truth at the output resolution: use --gt")
+        if not gt_dir:
+            if os.path.isdir(os.path.join(in_dir, "input")) and \
+                    os.path.isdir(os.path.join(in_dir, "gt")):
+                in_dir, gt_dir = os.path.join(in_dir, "input"), os.path.join(in_dir, "gt")
+            else:
+                raise UsageError("--scale needs --gt GT (the ground truth at the output "
+                                 "resolution, on the input's frame numbers)")
+        from fgcli.sr import ScaledGTSource
+
+        return ScaledGTSource(open_input(in_dir, gbuffer_frames=True, **in_kw),
+                              open_input(gt_dir, **in_kw), scale)
     if not gt_dir and not factor:
         if os.path.isdir(os.path.join(in_dir, "input")) and os.path.isdir(os.path.join(in_dir, "gt")):
             in_dir, gt_dir = os.path.join(in_dir, "input"), os.path.join(in_dir, "gt")
@@ -192,8 +212,18 @@ def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:
     from fgcli import evaluate as ev
     from fgcli import pipeline as pl
 
-    src = eval_source(task.in_dir, task.gt_dir, task.factor, task.in_kw)
+    src = eval_source(task.in_dir, task.gt_dir, task.factor, task.in_kw, task.scale)
     pipes = [pl.load(n) for n in task.pipelines]
+    if task.scale > 1:
+        from fgcli.sr import evaluate_scaled
+
+        res = evaluate_scaled(src, pipes, task.mode, progress=progress, device=task.device,
+                              hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
+                              on_frame=on_frame, scene_cuts=task.scene_cuts,
+                              cut_threshold=task.cut_threshold, backend=task.backend,
+                              region=task.region)
+        res["sequence"] = task.label()
+        return res
     res = ev.evaluate(src, pipes, task.mode, progress=progress,
                       device=task.device, hdr_flip=task.hdr_flip, keep_worst=task.keep_worst,
                       on_frame=on_frame, scene_cuts=task.scene_cuts,

@@ -307,6 +307,9 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
         raise UsageError(f"none of the pipelines supports mode '{mode}'")
     masks_cache: dict = {}
     states = {id(b[1]): RunState() for b in built}  # recurrent state per pipeline
+    from fgcli.temporal import TemporalChange, step_frames_of
+
+    tchange = {id(b[1]): TemporalChange(step_frames_of(src)) for b in built}
     holes: dict = {}  # pipeline -> [unfilled pixels, pixels] (gffe_hole_fill)
     worst: dict = {}
     cuts: list = []
@@ -344,6 +347,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                 ctx = run_stages(stages, ctx, tm, label=str(task.target), sync=sync,
                                  measure_skips=True, facts=dict(facts))
                 score_frame(sc, ctx["color"], gt.color, dis, mov, task.target, hdr_flip, box)
+                tchange[id(stages)].add(task.target, ctx["color"], gt.color, gt)
                 if ctx.get("holes") is not None:
                     hc = holes.setdefault(p.label, [0, 0])
                     hc[0] += int(ctx["holes"])
@@ -359,8 +363,9 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                     on_frame(1)
     bar.close()
     res = {}
-    for p, _, tm, sc in built:
+    for p, stages_, tm, sc in built:
         r = sc.result()
+        r["temporal_change"] = tchange[id(stages_)].result()
         s = tm.summary()
         r.update({"ms_per_frame": s["ms_per_frame"], "stages": s["stages"],
                   "skipped_stage_runs": s["skipped"],
@@ -388,7 +393,9 @@ def markdown_table(result: dict) -> str:
     cols = [("psnr", "PSNR dB", "{:.2f}"), ("ssim", "SSIM", "{:.4f}"), ("flip", "LDR-FLIP", "{:.4f}"),
             ("flip_hdr", "HDR-FLIP", "{:.4f}"), ("psnr_disoccluded", "PSNR disocc", "{:.2f}"),
             ("flip_disoccluded", "FLIP disocc", "{:.4f}"), ("psnr_moving", "PSNR moving", "{:.2f}"),
-            ("flip_moving", "FLIP moving", "{:.4f}"), ("ms_per_frame", "ms/frame", "{:.1f}")]
+            ("flip_moving", "FLIP moving", "{:.4f}"),
+            ("temporal_change", "temporal change", "{:.4f}"),
+            ("ms_per_frame", "ms/frame", "{:.1f}")]
     lines = ["| pipeline | " + " | ".join(c[1] for c in cols) + " | stages (median ms) |",
              "|---|" + "---|" * len(cols) + "---|"]
     for name, r in result["pipelines"].items():

@@ -70,13 +70,17 @@ class Frame:
     # can use it read it (gffe-extrap's hole fill); outputs never carry it.
     overscan: dict | None = None
 
+    def _plane(self):
+        # a G-buffer-only frame (written for a frame an engine did not shade) has no colour
+        return self.color if self.color is not None else self.depth
+
     @property
     def height(self) -> int:
-        return int(self.color.shape[-2])
+        return int(self._plane().shape[-2])
 
     @property
     def width(self) -> int:
-        return int(self.color.shape[-1])
+        return int(self._plane().shape[-1])
 
     @property
     def t(self) -> float:

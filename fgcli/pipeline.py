@@ -39,7 +39,10 @@ except ModuleNotFoundError:  # pragma: no cover - python < 3.11
 PIPELINE_DIRS = [os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                               "pipelines"),
                  os.path.join(sys.prefix, "share", "fgen", "pipelines")]
-TOP_KEYS = {"name", "description", "modes", "stage", "paper", "requires"}
+TOP_KEYS = {"name", "description", "modes", "stage", "paper", "requires", "scale_only"}
+# stage mode of the super-resolution stages: they run once per rendered frame when the
+# output is larger than the input (--scale), before the frame-generation stages
+SR_MODE = "sr"
 STAGE_KEYS = {"use", "id", "modes"}
 FINAL_OUTPUTS = ("color", "depth", "mv")
 SCENE_CUT_THRESHOLD = 0.45  # FSR 3's symmetric-KL threshold on regional luminance histograms
@@ -64,6 +67,12 @@ class Pipeline:
     path: str
     requires: tuple = ("color", "depth", "mv")
     variant: str | None = None  # label when built from a variant string
+    scale_only: bool = False  # a super-resolution baseline: only with --scale > 1
+
+    @property
+    def has_sr(self) -> bool:
+        """True when the pipeline has its own super-resolution stages (mode "sr")."""
+        return any(SR_MODE in st.modes and st.enabled for st in self.stages)
 
     @property
     def label(self) -> str:
@@ -111,12 +120,14 @@ class Pipeline:
         return p
 
     def build(self, mode: str) -> list[tuple[StageSpec, Stage]]:
-        if mode not in self.modes:
+        if mode not in self.modes and not (mode == SR_MODE and self.has_sr):
             raise UsageError(f"pipeline '{self.name}' does not support mode '{mode}' "
                              f"(modes: {', '.join(self.modes)})")
         out = []
         for st in self.stages:
             if not st.enabled or (st.modes and mode not in st.modes):
+                continue
+            if (mode == SR_MODE) != (SR_MODE in st.modes):  # sr stages run in mode sr only
                 continue
             cls = get_stage(st.use, f"{self.path}:{st.line}")
             out.append((st, cls(where=f"{self.path}:{st.line}", **st.opts)))
@@ -131,13 +142,19 @@ class Pipeline:
 FRAME_KEYS = frozenset({"color0", "depth0", "mv0", "camera0", "color1", "depth1", "mv1",
                         "camera1", "alpha", "mode", "width", "height", "prev_time", "state",
                         "facts", "number0", "number1"})
+# what the super-resolution stages (mode "sr") get instead: one rendered frame (color1,
+# depth1, mv1 at the input resolution), its jitter (LR pixels), the scale, and its depth
+# and vectors already at the output resolution
+SR_FRAME_KEYS = frozenset({"color1", "depth1", "mv1", "camera1", "jitter1", "scale",
+                           "depth_hr", "mv_hr", "state", "facts", "number1", "width",
+                           "height"})
 
 
 def check_flow(p: "Pipeline", mode: str, built) -> None:
     """Data flow of one mode: every enabled stage's declared inputs are produced by the
     frame (FRAME_KEYS) or by an earlier stage, and the stages produce color, depth and mv.
     Errors name the file, the stage's line, the stage and the input."""
-    have = set(FRAME_KEYS)
+    have = set(SR_FRAME_KEYS if mode == SR_MODE else FRAME_KEYS)
     for spec, stage in built:
         for k in stage.inputs:
             if k not in have:
@@ -154,7 +171,7 @@ def check_flow(p: "Pipeline", mode: str, built) -> None:
 def flow(p: "Pipeline", mode: str) -> list[dict]:
     """Per enabled stage of a mode: its inputs (with where each comes from: 'frame' or the
     producing stage's id) and outputs."""
-    src = {k: "frame" for k in FRAME_KEYS}
+    src = {k: "frame" for k in (SR_FRAME_KEYS if mode == SR_MODE else FRAME_KEYS)}
     rows = []
     for spec, stage in p.build(mode):
         ins = [(k, src[k]) for k in stage.inputs]
@@ -210,14 +227,15 @@ def load_pipeline_file(path: str) -> Pipeline:
             opts[k] = v
         smodes = tuple(st.get("modes", ()))
         for m in smodes:
-            if m not in modes:
+            if m not in modes and m != SR_MODE:
                 raise UsageError(f"{path}:{line}: stage mode '{m}' not in pipeline modes {modes}")
         specs.append(StageSpec(id=st.get("id", st["use"]), use=st["use"], opts=opts,
                                modes=smodes, line=line))
     p = Pipeline(name=name, description=data.get("description", ""), modes=modes,
                  stages=specs, path=path, requires=tuple(data.get("requires",
-                                                                  ("color", "depth", "mv"))))
-    for m in modes:
+                                                                  ("color", "depth", "mv"))),
+                 scale_only=bool(data.get("scale_only", False)))
+    for m in modes + ((SR_MODE,) if p.has_sr else ()):
         p.build(m)  # option values are checked here
     return p
 
@@ -492,5 +510,5 @@ def describe(p: Pipeline) -> dict:
         opts = {o.name: st.opts.get(o.name, o.default) for o in cls.options}
         out["stages"].append({"id": st.id, "use": st.use, "modes": list(st.modes) or list(p.modes),
                               "enabled": st.enabled, "options": opts})
-    out["flow"] = {m: flow(p, m) for m in p.modes}
+    out["flow"] = {m: flow(p, m) for m in p.modes + ((SR_MODE,) if p.has_sr else ())}
     return out

@@ -453,7 +453,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                  compression: str = "zip", command: str = "",
                  chunk: tuple[int, int] | None = None, on_frame=None,
                  scene_cuts: str = "auto", cut_threshold: float | None = None,
-                 backend: str = "auto") -> dict:
+                 backend: str = "auto", scale: int = 1) -> dict:
     """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
     alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
     OUT/fgen-run.json, or OUT/fgen-run.chunk-K-of-N.json for a chunk).
@@ -467,7 +467,9 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     scene_cuts: "auto" (detect camera cuts, repeat the nearest frame across one) or "off";
     cut_threshold: the histogram score that makes a cut candidate (default FSR 3's).
     backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve); in every
-    frame's ctx["backend"]."""
+    frame's ctx["backend"].
+    scale: output resolution / input resolution (fgcli.sr): rendered frames are
+    reconstructed at that size (emit all writes them), generated frames made at it."""
     plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
     out.check_all([out.path_for(on) for on in plan["outputs"]])
     timings = Timings()
@@ -481,7 +483,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
             cache.prefetch(n)
         return _run(reader, out, pipeline, mode, plan, cache, threads, timings, emit,
                     device, progress, out_layout, half, compression, command, chunk,
-                    on_frame, scene_cuts, cut_threshold, backend)
+                    on_frame, scene_cuts, cut_threshold, backend, scale)
     finally:
         cache.close()
         threads.restore()
@@ -490,7 +492,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
 def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCache,
          threads: IOThreads, timings: Timings, emit: str, device: str, progress: bool,
          out_layout: str, half: bool, compression: str, command: str, chunk, on_frame,
-         scene_cuts: str, cut_threshold: float | None, backend: str) -> dict:
+         scene_cuts: str, cut_threshold: float | None, backend: str, scale: int = 1) -> dict:
     import torch
 
     from fgcli.kernels import resolve
@@ -498,7 +500,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     cache.torch_loaded.set()
     device = check_device(device)
     cache.device = device
-    backend = resolve(backend, device, reader.width * reader.height)
+    backend = resolve(backend, device, reader.width * reader.height * scale * scale)
     threads.limit_compute(backend, device)
     stages = pipeline.build(mode)
     kernel_load_s = None
@@ -523,6 +525,12 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     pinfo = describe(pipeline)
     attrs_common = {"fgen:pipeline": pipeline.label, "fgen:mode": mode,
                     "fgen:command_line": command, "fgen:pipeline_json": json.dumps(pinfo)}
+    rec = None
+    if scale > 1:
+        from fgcli.sr import Reconstructor
+
+        attrs_common["fgen:scale"] = scale
+        rec = Reconstructor(pipeline, scale, cache.get, numbers, backend, sync, scene_cuts)
     written, skipped_existing, replayed = 0, 0, 0
     windows: dict = {}  # rendered frame -> adaptive rendering window (gffe_window)
     bar = _progress(len(mine) + len(copies), f"{pipeline.label} {mode}", progress)
@@ -544,7 +552,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
             for n, on in copies:
                 path = out.path_for(on)
                 if out.should_write(path):
-                    f = cache.get(n)
+                    f = cache.get(n) if rec is None else rec.frame(n, timings)
                     if f.mv is not None and n != numbers[0]:
                         # in the merged sequence the previous output frame is the last
                         # generated one: rescale the rendered vectors (linear motion)
@@ -572,22 +580,30 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                 for nxt in todo[i + 1:i + 1 + max(1, cache.keep // 2)]:
                     cache.prefetch(jobs[nxt][1])
                     cache.prefetch(jobs[nxt][0])
-                ctx = make_ctx(f0, f1, float(t), mode)
-                ctx["state"] = state
-                ctx["prev_time"] = float(prev_t)
-                ctx["scene_cuts"] = scene_cuts
-                ctx["backend"] = backend
-                if cut_threshold is not None:
-                    ctx["scene_cut_threshold"] = cut_threshold
-                ctx = run_stages(stages, ctx, timings if ji in to_write else None,
-                                 label=str(on), sync=sync)
+                if rec is not None:
+                    from fgcli.sr import generate
+
+                    ctx = generate(stages, pipeline.has_sr, rec, f0, f1, float(t), mode,
+                                   state, scale, backend,
+                                   timings if ji in to_write else None, label=str(on),
+                                   sync=sync, prev_time=float(prev_t))
+                else:
+                    ctx = make_ctx(f0, f1, float(t), mode)
+                    ctx["state"] = state
+                    ctx["prev_time"] = float(prev_t)
+                    ctx["scene_cuts"] = scene_cuts
+                    ctx["backend"] = backend
+                    if cut_threshold is not None:
+                        ctx["scene_cut_threshold"] = cut_threshold
+                    ctx = run_stages(stages, ctx, timings if ji in to_write else None,
+                                     label=str(on), sync=sync)
                 if ji not in to_write:
                     continue
                 if ctx.get("render_window") is not None:
                     windows[str(b)] = ctx["render_window"]
                 base, span = (b, step) if mode == "extrap" else (a, b - a)
-                windowed = (getattr(f1, "data_window", None) is not None
-                            or getattr(f0, "data_window", None) is not None)
+                windowed = rec is None and (getattr(f1, "data_window", None) is not None
+                                            or getattr(f0, "data_window", None) is not None)
                 gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1, windowed)
                 src = f"{a},{b}" if a is not None else f"{b}"
                 writer.submit(out.path_for(on), gen.to("cpu"), **wkw,
@@ -613,7 +629,11 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                "skipped_stages": [{"frame": f, "stage": s, "why": w} for f, s, w in timings.skipped],
                "scene_cuts": {"mode": scene_cuts, "candidates": timings.cuts,
                               "cuts": [c["frame"] for c in timings.cuts if c["cut"]]},
-               "command": command, "device": device, "backend": backend,
+               "command": command, "device": device, "backend": backend, "scale": scale,
+               **({"gbuffer_only_inputs": list(getattr(reader, "gbuffer_only", []))}
+                  if getattr(reader, "gbuffer_only", None) else {}),
+               **({"jitter_missing": rec.no_jitter} if rec is not None and rec.no_jitter
+                  else {}),
                "kernel_load_ms": None if kernel_load_s is None else round(kernel_load_s * 1e3, 1)}
     name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
     atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))

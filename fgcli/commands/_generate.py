@@ -37,6 +37,13 @@ def common(f):
                      help="Override a stage option (repeatable).")(f)
     f = click.option("--device", default="cpu", show_default=True, help="cpu or cuda.")(f)
     f = backend_option(f)
+    f = click.option("--scale", type=click.IntRange(1, 8), default=1, show_default=True,
+                     help="Output resolution / input resolution: the input is a (jittered) "
+                          "low-resolution render; every output frame is written at SCALE x "
+                          "its size (pipelines with super-resolution stages reconstruct the "
+                          "rendered frames and generate at that size; the others generate "
+                          "at the input size and upscale). G-buffer-only input frames (no "
+                          "colour) are never read as colour sources.")(f)
     f = click.option("--no-progress", is_flag=True, help="Hide the progress bar.")(f)
     f = click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
                      help="Also write the run summary (timings, skips) to this JSON file.")(f)
@@ -112,10 +119,16 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
     check_executor(executor, scheduler, workers, chunk)
     # --backend (backend_option) is read here, not passed by each command
     backend = click.get_current_context().params.get("backend") or "auto"
+    scale = int(click.get_current_context().params.get("scale") or 1)  # --scale, alike
     resolve(backend, device)  # fail early (numba missing, numba with cuda)
     p = pl.load(pipeline)  # fail early on a bad pipeline or option
     if sets:
         p.with_overrides(list(sets), label=p.label)
+    if p.scale_only and scale == 1:
+        from fgcli.errors import UsageError
+
+        raise UsageError(f"pipeline '{p.name}' is a super-resolution method: it needs "
+                         "--scale 2 (or more)")
     ch = parse_chunk(chunk)
     seqs = expand_inputs(in_dirs, out_dir, in_kw)
     command = recorded_command(sys.argv[1:])
@@ -123,7 +136,7 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
                      sets=tuple(sets), device=device, times=tuple(times), emit=emit, count=count,
                      in_kw={k: v for k, v in in_kw.items() if k != "pattern"}, out_kw=out_kw,
                      command=command, chunk=ch, name=name, scene_cuts=scene_cuts,
-                     cut_threshold=cut_threshold, backend=backend)
+                     cut_threshold=cut_threshold, backend=backend, scale=scale)
              for name, folder, pattern, od in seqs]
     if executor == "dask":
         from fgcli.executor import run_dask

@@ -16,6 +16,11 @@ from fgcli.io.options import input_options
 @click.option("--variant", "variants", multiple=True, metavar="PIPE:OPT=V[,OPT=V]",
               help="Also run a variant, e.g. mob-fgsr:motion=linear or mob-fgsr:gap_fill=off.")
 @click.option("--mode", type=click.Choice(["interp", "extrap"]), default="interp", show_default=True)
+@click.option("--scale", type=click.IntRange(1, 8), default=1, show_default=True,
+              help="Output resolution / input resolution: IN is a (jittered) low-resolution "
+                   "render, GT its ground truth at SCALE x its size on the same frame "
+                   "numbers; scores SS frames (the rendered times, reconstructed) and ESS "
+                   "frames (the generated times) separately.")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Write the scores as JSON.")
 @click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
@@ -35,7 +40,7 @@ from fgcli.io.options import input_options
 @executor_options
 @scene_cut_options
 @input_options
-def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
+def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, report_dir, device,
         region, backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
         **in_kw):
     """Score pipelines against ground truth (DESIGN.md section 4).
@@ -74,6 +79,11 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
     chosen = []
     for n in names:
         p = pl.load(n)
+        if p.scale_only and scale == 1:
+            if pipelines != "all":
+                raise UsageError(f"pipeline '{n}' is a super-resolution method: it needs "
+                                 f"--scale 2 (or more)")
+            continue
         if mode in p.modes:
             chosen.append(n)
         elif pipelines != "all":
@@ -87,9 +97,11 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
     tasks = [EvalTask(in_dir=d, gt_dir=gt_dir, factor=factor, pipelines=tuple(chosen), mode=mode,
                       in_kw=in_kw, device=device, hdr_flip=not no_hdr_flip,
                       keep_worst=report_dir is not None, name=lab, scene_cuts=scene_cuts,
-                      cut_threshold=cut_threshold, backend=backend, region=region)
+                      cut_threshold=cut_threshold, backend=backend, region=region,
+                      scale=scale)
              for d, lab in zip(in_dirs, labels)]
-    srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw) for t in tasks]  # fail early
+    srcs = [eval_source(t.in_dir, t.gt_dir, t.factor, t.in_kw, t.scale)
+            for t in tasks]  # fail early
     if executor == "dask":
         from fgcli.evaluate import make_tasks
         from fgcli.executor import eval_dask
@@ -127,6 +139,15 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
         if result["scene_cuts"]["cuts"]:
             click.echo(f"# scene cuts (nearest frame repeated) at frames "
                        f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")
+        if scale > 1:
+            from fgcli.sr import markdown_tables
+
+            click.echo(f"# x{scale}: SS frames {len(result['ss_frames'])}, ESS frames "
+                       f"{len(result['ess_frames'])}"
+                       + (f" ({len(result['gbuffer_only_inputs'])} of them G-buffer-only "
+                          f"input frames)" if result["gbuffer_only_inputs"] else ""))
+            click.echo(markdown_tables(result))
+            click.echo(f"## all scored frames, x{scale}")
         click.echo(ev.markdown_table(result))
         if report_dir:
             from fgcli.report import write_report

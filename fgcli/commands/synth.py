@@ -53,9 +53,18 @@ def _scene_files(paths) -> list[str]:
               help="Render the random scene SEED (random objects, textures, motions, camera "
                    "path, lights; what `fgen train` renders its data from) instead of a scene "
                    "file: `fgen synth --random 7 OUT/`. Default size 256x144.")
+@click.option("--jitter", is_flag=True,
+              help="Add the `jitter` effect: the input is a low-resolution render (the "
+                   "scene's jitter_scale, default 0.5) with a Halton sub-pixel jitter per "
+                   "frame (fgen:jitter_x/y), and the ground truth also holds the "
+                   "full-resolution frame at every input time (super-resolution data).")
+@click.option("--gbuffer-only", type=click.Choice(["none", "odd"]), default="none",
+              show_default=True,
+              help="odd: write every odd input frame without colour (depth, vectors, normals, "
+                   "albedo only), as an engine that shades every other frame writes them.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, random_seed,
-        no_progress):
+        jitter, gbuffer_only, no_progress):
     """Render procedural scene SCENE.toml into OUT/ (fgen layout + cameras.json).
 
     Frame numbers live on one timeline at the finer rate: with --gt and --gt-factor K the
@@ -85,18 +94,20 @@ def cmd(paths, size, frames, fps, gt_dir, gt_factor, spp, overwrite, preview, ra
 
         out = paths[0]
         scene = load_scene(random_scene(random_seed, size=size or (256, 144)), fps=fps,
-                           frames=frames)
+                           frames=frames, add_effects=("jitter",) if jitter else ())
     else:
         if len(paths) != 2:
             raise UsageError("expected SCENE.toml and OUT/ (or --preview PNG with scene files)")
         scene_path, out = paths
         if os.path.isdir(scene_path):
             raise InputError("expected a scene file, got a folder", file=scene_path)
-        scene = load_scene(scene_path, size=size, fps=fps, frames=frames)
+        scene = load_scene(scene_path, size=size, fps=fps, frames=frames,
+                           add_effects=("jitter",) if jitter else ())
     from fgcli.synth.sequence import render_sequence
 
     res = render_sequence(scene, out, gt_dir=gt_dir, gt_factor=gt_factor,
-                          progress=not no_progress, overwrite=overwrite, spp=spp)
+                          progress=not no_progress, overwrite=overwrite, spp=spp,
+                          gbuffer_only=gbuffer_only)
     n = res["input"] + res["gt"]
     msg = f"{scene.name}: {res['input']} input frames -> {out}"
     if gt_dir:

@@ -72,13 +72,14 @@ def output_options(f):
 def open_input(folder: str, fields: set[str] | None = None, optional: set[str] | None = None,
                pattern: str | None = None, frames: str | None = None,
                allow_gaps: bool = False, layout: str | None = None, view: str | None = None,
-               **_other):
+               gbuffer_frames: bool = False, **_other):
     """A SequenceReader for `folder` from the input options (other keyword arguments, e.g.
     a command's remaining options, are ignored)."""
     from fgcli.io.reader import SequenceReader
 
     return SequenceReader(folder, pattern=pattern, frames=frames, allow_gaps=allow_gaps,
-                          layout=layout, view=view, fields=fields, optional=optional)
+                          layout=layout, view=view, fields=fields, optional=optional,
+                          gbuffer_frames=gbuffer_frames)
 
 
 def resolve_out_layout(out_layout, reader=None):

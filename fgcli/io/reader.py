@@ -29,7 +29,8 @@ class SequenceReader:
 
     def __init__(self, folder: str, pattern: str | None = None, frames: str | None = None,
                  allow_gaps: bool = False, layout=None, view: str | None = None,
-                 fields: set[str] | None = None, optional: set[str] | None = None):
+                 fields: set[str] | None = None, optional: set[str] | None = None,
+                 gbuffer_frames: bool = False):
         self.folder = str(folder)
         self.seq = sequence.discover(self.folder, pattern, frames, allow_gaps)
         # every frame on disk (for the previous frame of a forward-vector derivation)
@@ -37,7 +38,20 @@ class SequenceReader:
                           if frames else dict(self.seq.files))
         self.disk_step = sequence.Sequence(self.folder, "", 0, self.all_files).step
         self.numbers = self.seq.frames
+        # G-buffer-only frames (depth, vectors, normals, albedo but no colour: frames an
+        # engine did not shade): found when asked for; the layout comes from a shaded frame
+        self.gbuffer_only: list[int] = []
         first = self.seq.files[self.numbers[0]]
+        if gbuffer_frames:
+            self.gbuffer_only, first = _gbuffer_only(self.seq, layout, view)
+            if self.gbuffer_only:  # the sequence is its shaded frames
+                from dataclasses import replace
+
+                skip = set(self.gbuffer_only)
+                self.gbuffer_files = {n: self.seq.files[n] for n in self.gbuffer_only}
+                self.seq = replace(self.seq, files={n: p for n, p in self.seq.files.items()
+                                                    if n not in skip})
+                self.numbers = self.seq.frames
         try:
             self.header0 = exr.read_header(first)
             self.layout = layouts.resolve(layout, self.header0)
@@ -334,6 +348,30 @@ class SequenceReader:
         if msg and not self._warned:
             self._warned = True
             print(f"warning: {msg}", file=sys.stderr)
+
+
+def _gbuffer_only(seq, layout, view) -> tuple[list[int], str]:
+    """(numbers of the frames without colour channels, path of the first frame with them).
+    InputError when no frame has colour."""
+    gbuf, first = [], None
+    for n in seq.frames:
+        path = seq.files[n]
+        try:
+            h = exr.read_header(path)
+            lay = layouts.resolve(layout, h)
+            has = "color" in lay.describe(h, view).names
+        except InputError as e:
+            if "color" not in str(e) and "layout" not in str(e):
+                raise e.with_frame(n) from None
+            has = False
+        if has:
+            first = first or path
+        else:
+            gbuf.append(n)
+    if first is None:
+        raise InputError("no frame has colour channels (every frame is G-buffer-only)",
+                         file=seq.folder if hasattr(seq, "folder") else None)
+    return gbuf, first
 
 
 def path_of(reader, n: int) -> str:

@@ -184,6 +184,7 @@ class Scene:
     hud: dict
     overscan: int
     jitter_scale: float
+    jitter_spp: int
     spec: dict  # the scene as a plain dict (overrides applied), for hashing and copies
     hash: str
     stats: dict = field(default_factory=dict)
@@ -464,6 +465,8 @@ def _parse(d: dict, file: str, name: str, size, fps, frames, spp) -> Scene:
     ht.done()
     overscan = root.num("overscan_pixels", 16, lo=0, hi=4096, integer=True)
     jitter_scale = root.num("jitter_scale", 0.5, lo=0.05, hi=1.0)
+    # a real-time renderer's jittered frame: one sample per pixel, at the jittered place
+    jitter_spp = root.num("jitter_spp", 1, lo=1, hi=16, integer=True)
     root.done()
     spec = copy.deepcopy(d)
     spec.update({"name": name, "size": [int(w), int(h)], "fps": fps_v, "frames": n, "spp": spp_v})
@@ -472,10 +475,12 @@ def _parse(d: dict, file: str, name: str, size, fps, frames, spp) -> Scene:
                  spp=spp_v, effects=frozenset(eff), camera=cam, objects=objects, lights=lights,
                  sky_zenith=zen, sky_horizon=hor, sky_ground=gnd, ambient=amb,
                  exposure=exposure, seed=seed, particles=particles, hud=hud,
-                 overscan=overscan, jitter_scale=jitter_scale, spec=spec, hash=digest)
+                 overscan=overscan, jitter_scale=jitter_scale, jitter_spp=int(jitter_spp),
+                 spec=spec, hash=digest)
 
 
-def load_scene(path_or_dict, size=None, fps=None, frames=None, spp=None) -> Scene:
+def load_scene(path_or_dict, size=None, fps=None, frames=None, spp=None,
+               add_effects=()) -> Scene:
     """Load and validate a scene from a TOML file or a dict (same schema).
 
     size (W, H), fps, frames, spp override the file's values. Raises InputError naming the
@@ -501,6 +506,11 @@ def load_scene(path_or_dict, size=None, fps=None, frames=None, spp=None) -> Scen
         if isinstance(size, str):
             size = parse_size(size)
         size = (int(size[0]), int(size[1]))
+    if add_effects:  # e.g. `fgen synth --jitter`: part of the scene (and of its hash)
+        d = dict(d)
+        eff = d.get("effects", [])
+        d["effects"] = list(eff) + [e for e in add_effects if e not in eff] \
+            if isinstance(eff, list) else eff
     return _parse(d, file, name, size, fps, frames, spp)
 
 

@@ -88,15 +88,20 @@ def written_vectors(mv: torch.Tensor, step: float = MV_STEP) -> torch.Tensor:
 
 def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_factor: int = 2,
                     progress: bool = True, overwrite: bool = False, spp: int | None = None,
-                    mv_step: float = MV_STEP) -> dict:
+                    mv_step: float = MV_STEP, gbuffer_only: str = "none") -> dict:
     """Render the input frames of `scene` into out_dir (and ground truth into gt_dir).
 
     Writes `<scene>.<number:04d>.exr` in the fgen layout plus cameras.json in each folder.
     mv_step: motion vectors are rounded to multiples of it (a power of two, so the float32
     values are exact; 0 keeps every bit): below a thousandth of a pixel the float32 bits
     are arithmetic noise, and rounding them away makes the files 2-3x smaller.
+    gbuffer_only: "odd" writes every odd input frame (input index 1, 3, ...) without colour
+    and alpha, as an engine that shades every other frame writes them (depth, vectors,
+    normals, albedo, roughness only; `fgen:gbuffer_only` = 1 in the header).
     Returns a summary: frames written per folder, seconds, work counters.
     """
+    if gbuffer_only not in ("none", "odd"):
+        raise UsageError(f"gbuffer_only must be 'none' or 'odd' (got {gbuffer_only!r})")
     out_dir = os.fspath(out_dir)
     if gt_dir is not None:
         gt_dir = os.fspath(gt_dir)
@@ -132,7 +137,8 @@ def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_fa
                 "fgen:synth_hash": scene.hash,
                 "fgen:synth_role": role,
                 "fgen:synth_effects": ",".join(sorted(scene.effects)) or "none",
-                "fgen:synth_spp": spp,
+                "fgen:synth_spp": (scene.jitter_spp if role == "input" and
+                                   scene.has("jitter") else spp),
                 "fgen:time": t,
                 "fgen:time_seconds": scene.seconds(t),
                 "fgen:mv_time": prev_t,
@@ -143,6 +149,9 @@ def render_sequence(scene: Scene, out_dir: str, gt_dir: str | None = None, gt_fa
                 "fgen:mv_step": mv_step,
             }
             fc = frame_camera(scene, t, role)
+            if role == "input" and gbuffer_only == "odd" and int(round(t)) % 2 == 1:
+                frame = frame.replace(color=None, alpha=None)
+                attrs["fgen:gbuffer_only"] = 1
             if scene.has("jitter") and role == "input":
                 attrs["fgen:jitter_x"], attrs["fgen:jitter_y"] = fc.jitter
             path = os.path.join(folders[role], frame_name(scene, num))

@@ -585,9 +585,12 @@ def render(scene: Scene, t: float, prev_t: float | None = None, spp: int | None 
     the pixel-centre sample; costs about one extra ray per pixel and light.
     Work done is added to scene.stats.
     """
+    spp = spp or scene.spp
+    if role == "input" and scene.has("jitter"):
+        spp = scene.jitter_spp  # the jittered low-resolution frame of a real-time renderer
     with torch.inference_mode():
         return _render(scene, float(t), None if prev_t is None else float(prev_t),
-                       spp or scene.spp, role, number, extras)
+                       spp, role, number, extras)
 
 
 @dataclass

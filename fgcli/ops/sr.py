@@ -1,0 +1,298 @@
+"""Super resolution from jittered low-resolution renders: resampling, geometry upsampling,
+TAA upsampling and Mob-FGSR's SR (paper Sec. 3.5).
+
+Coordinates. A low-resolution (LR) frame (C, h, w) was rendered with a sub-pixel jitter
+(jx, jy) in LR pixels: its sample (col, row) lies at (col + 0.5 + jx, row + 0.5 + jy) of
+the unjittered LR grid. The high-resolution (HR) output is (C, s*h, s*w) for an integer
+scale s; HR pixel (X, Y) has its centre at ((X + 0.5) / s, (Y + 0.5) / s) in LR pixel
+units, i.e. at LR *sample-index* position ``u = (X + 0.5) / s - 0.5 - jx`` (and v alike),
+where sample i sits at index i. Motion vectors exclude the jitter (as engines write them):
+an LR vector scaled by s is the HR vector.
+
+Every function takes torch float32 (C, H, W) tensors and returns finite values for finite
+or non-finite input (NaN colour reads as 0, inf as a large finite value).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from fgcli.ops._util import BIG, check_tensor, sanitize_depth, sanitize_mv, sanitize_values
+
+# Mob-FGSR Eq. 2 blend constants (paper Sec. 4)
+SR_A = 0.34
+SR_B = 0.81
+# sub-pixel phases of the Catmull-Rom look-up table (the public code's 32 x 32 x 16 LUT)
+LUT_PHASES = 32
+
+
+def check_scale(scale) -> int:
+    s = int(scale)
+    if s != scale or s < 1:
+        raise ValueError(f"scale must be a positive integer, got {scale!r}")
+    return s
+
+
+def clean_jitter(jitter) -> tuple[float, float]:
+    """(jx, jy) as finite floats in [-1, 1] LR pixels (None, NaN or inf read as 0)."""
+    if jitter is None:
+        return 0.0, 0.0
+    out = []
+    for v in jitter:
+        v = float(v)
+        out.append(min(1.0, max(-1.0, v)) if math.isfinite(v) else 0.0)
+    return out[0], out[1]
+
+
+def cr_weights(t: torch.Tensor):
+    """Catmull-Rom (a = -0.5) weights of the taps at offsets -1, 0, 1, 2 for fraction t."""
+    t2 = t * t
+    return (t * (t * (1.0 - 0.5 * t) - 0.5), t2 * (1.5 * t - 2.5) + 1.0,
+            t * (t * (2.0 - 1.5 * t) + 0.5), t2 * (0.5 * t - 0.5))
+
+
+def catmull_rom_lut(phases: int = LUT_PHASES) -> torch.Tensor:
+    """(phases, 4) separable Catmull-Rom tap weights at the phase centres (k + 0.5) / phases;
+    the 2D table of the public code is the outer product (phases x phases x 16)."""
+    t = (torch.arange(phases, dtype=torch.float64) + 0.5) / phases
+    return torch.stack(cr_weights(t), dim=1).float()
+
+
+def _axis_weights(frac: torch.Tensor, phases: int | None):
+    if phases is None:
+        return cr_weights(frac)
+    lut = catmull_rom_lut(phases).to(frac.device)
+    k = (frac * phases).floor_().clamp_(0, phases - 1).long()
+    w = lut[k]  # (..., 4)
+    return tuple(w[..., i] for i in range(4))
+
+
+def resample_cubic(img: torch.Tensor, x: torch.Tensor, y: torch.Tensor,
+                   phases: int | None = None, dering: bool = True) -> torch.Tensor:
+    """Sample img (C, h, w) at sample-index positions x, y (each (H, W)) with 4x4
+    Catmull-Rom taps, edges clamped. phases: quantise the sub-pixel fraction to that many
+    phases (a look-up table, as Mob-FGSR's LUT); None = exact weights. dering: clamp each
+    result to the range of its 2x2 nearest taps (no overshoot past HDR edges, no negative
+    colour). Returns (C, H, W)."""
+    c, h, w = img.shape
+    src = sanitize_values(img)
+    x = torch.nan_to_num(x, nan=0.0).clamp(-2.0, w + 1.0)
+    y = torch.nan_to_num(y, nan=0.0).clamp(-2.0, h + 1.0)
+    x0, y0 = x.floor(), y.floor()
+    wx, wy = _axis_weights(x - x0, phases), _axis_weights(y - y0, phases)
+    x0, y0 = x0.long(), y0.long()
+    flat = src.reshape(c, h * w)
+    out = torch.zeros((c,) + tuple(x.shape), dtype=torch.float32, device=img.device)
+    lo = hi = None
+    for j in range(4):
+        yy = (y0 + (j - 1)).clamp_(0, h - 1) * w
+        for i in range(4):
+            idx = (yy + (x0 + (i - 1)).clamp_(0, w - 1)).reshape(-1)
+            tap = flat[:, idx].reshape(out.shape)
+            out += tap * (wx[i] * wy[j])
+            if dering and i in (1, 2) and j in (1, 2):
+                lo = tap.clone() if lo is None else torch.minimum(lo, tap)
+                hi = tap.clone() if hi is None else torch.maximum(hi, tap)
+    if dering:
+        out = torch.maximum(torch.minimum(out, hi), lo)
+    return sanitize_values(out)
+
+
+def hr_positions(h: int, w: int, scale: int, jitter=(0.0, 0.0), device="cpu"):
+    """LR sample-index positions (u, v), each (s*h, s*w), of the HR pixel centres."""
+    s = check_scale(scale)
+    jx, jy = clean_jitter(jitter)
+    xs = (torch.arange(w * s, dtype=torch.float32, device=device) + 0.5) / s - 0.5 - jx
+    ys = (torch.arange(h * s, dtype=torch.float32, device=device) + 0.5) / s - 0.5 - jy
+    return xs[None, :].expand(h * s, w * s), ys[:, None].expand(h * s, w * s)
+
+
+def upscale(color: torch.Tensor, scale: int, jitter=(0.0, 0.0),
+            phases: int | None = None) -> torch.Tensor:
+    """Bicubic (Catmull-Rom), jitter-aware upscale of an LR image (C, h, w) to
+    (C, s*h, s*w): each HR pixel reads the LR samples at their true (jittered) places."""
+    color = check_tensor(color, "color", allow_batch=False)
+    s = check_scale(scale)
+    if s == 1 and clean_jitter(jitter) == (0.0, 0.0):
+        return sanitize_values(color)
+    u, v = hr_positions(color.shape[-2], color.shape[-1], s, jitter, color.device)
+    return resample_cubic(color, u, v, phases)
+
+
+def upsample_geometry(depth: torch.Tensor, mv: torch.Tensor | None, scale: int,
+                      jitter=(0.0, 0.0), extra: dict | None = None):
+    """Depth and vectors at HR: each HR pixel takes the nearest surface (smallest depth) of
+    the 2x2 LR samples around its centre, with that sample's vector scaled by s (never an
+    average across an edge). extra: other per-pixel fields (normals, albedo...) taken from
+    the same sample. Returns (depth (1, sH, sW), mv (2, sH, sW) or None, extra dict)."""
+    depth = sanitize_depth(check_tensor(depth, "depth", 1, allow_batch=False))
+    s = check_scale(scale)
+    h, w = depth.shape[-2:]
+    u, v = hr_positions(h, w, s, jitter, depth.device)
+    x0 = u.floor().long()
+    y0 = v.floor().long()
+    flat = depth.reshape(-1)
+    best_d = best_i = None
+    for dy in (0, 1):
+        yy = (y0 + dy).clamp(0, h - 1) * w
+        for dx in (0, 1):
+            i = yy + (x0 + dx).clamp(0, w - 1)
+            d = flat[i]
+            if best_d is None:
+                best_d, best_i = d, i
+            else:
+                take = d < best_d
+                best_d = torch.where(take, d, best_d)
+                best_i = torch.where(take, i, best_i)
+    H, W = h * s, w * s
+    out_d = best_d.reshape(1, H, W).contiguous()
+    out_mv = None
+    if mv is not None:
+        m = sanitize_mv(mv).reshape(2, -1)
+        out_mv = (m[:, best_i.reshape(-1)] * float(s)).reshape(2, H, W)
+    out_extra = {}
+    for k, t in (extra or {}).items():
+        if t is None:
+            out_extra[k] = None
+            continue
+        ft = t.reshape(t.shape[0], -1)
+        out_extra[k] = ft[:, best_i.reshape(-1)].reshape(t.shape[0], H, W)
+    return out_d, out_mv, out_extra
+
+
+def _neighbourhood_box(color: torch.Tensor):
+    """Per-LR-pixel min and max of its 3x3 neighbourhood (edges replicate): (C, h, w) x2."""
+    p = F.pad(color[None], (1, 1, 1, 1), mode="replicate")
+    hi = F.max_pool2d(p, 3, stride=1)[0]
+    lo = -F.max_pool2d(-p, 3, stride=1)[0]
+    return lo, hi
+
+
+def _nearest_lr(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
+    """Flat index of the LR sample nearest to each position, and its distance (LR px)."""
+    iu = u.round().clamp(0, w - 1)
+    iv = v.round().clamp(0, h - 1)
+    d = torch.sqrt((u - iu) ** 2 + (v - iv) ** 2)
+    return (iv * w + iu).long(), d
+
+
+def _gather(img: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    c = img.shape[0]
+    return img.reshape(c, -1)[:, idx.reshape(-1)].reshape((c,) + tuple(idx.shape))
+
+
+def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=True):
+    """Warp the HR history to the current frame by the HR vectors: (colour (3,H,W), valid
+    (H,W) bool). Invalid: off-screen, no history, or the history's depth at the
+    reprojected place is a nearer surface (disocclusion: relative difference above t_d)."""
+    _, H, W = depth_hr.shape
+    dev = depth_hr.device
+    gx = torch.arange(W, dtype=torch.float32, device=dev)[None, :].expand(H, W)
+    gy = torch.arange(H, dtype=torch.float32, device=dev)[:, None].expand(H, W)
+    px, py = gx + mv_hr[0], gy + mv_hr[1]
+    inside = (px > -0.5) & (px < W - 0.5) & (py > -0.5) & (py < H - 0.5)
+    if cubic:
+        hc = resample_cubic(hist_color, px, py, filter_phases)
+    else:
+        g = torch.stack(((px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0), -1)
+        hc = F.grid_sample(sanitize_values(hist_color)[None], g[None].clamp(-2, 2),
+                           mode="bilinear", padding_mode="border", align_corners=False)[0]
+    ix = px.round().clamp(0, W - 1).long()
+    iy = py.round().clamp(0, H - 1).long()
+    hd = hist_depth.reshape(-1)[(iy * W + ix).reshape(-1)].reshape(H, W)
+    cd = depth_hr[0]
+    # disoccluded: the previous frame shows a nearer surface there (something covered this
+    # one); a farther one is the same surface seen from a camera that moved toward it
+    covered = hd < cd * (1.0 - t_d)
+    return hc, inside & ~covered
+
+
+def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, scale: int,
+         jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
+         hist_depth: torch.Tensor | None = None, blend: float = 0.2, t_d: float = 0.02,
+         history_filter: str = "catmull-rom"):
+    """One frame of TAA upsampling. color_lr (3, h, w) jittered LR colour; depth_hr,
+    mv_hr: the frame's geometry at HR (upsample_geometry); hist_*: the previous output and
+    its depth at HR (None: no history). The history is reprojected by the vectors
+    (history_filter: catmull-rom or bilinear), rejected where off-screen or where the
+    previous frame shows a nearer surface (disocclusion, relative t_d), clamped to the colour
+    range of the 3x3 LR samples around the pixel, and blended exponentially with the
+    nearest LR sample, whose weight falls with its distance to the HR pixel centre
+    (exp(-2.29 d^2), d in HR pixels, UE's TAAU): out = ((1-blend) h + blend w c) /
+    ((1-blend) + blend w). Without valid history: the bicubic upscale.
+    Returns the HR colour (3, s*h, s*w)."""
+    color_lr = sanitize_values(check_tensor(color_lr, "color", 3, allow_batch=False))
+    s = check_scale(scale)
+    h, w = color_lr.shape[-2:]
+    spatial = upscale(color_lr, s, jitter)
+    if hist_color is None or hist_depth is None:
+        return spatial
+    u, v = hr_positions(h, w, s, jitter, color_lr.device)
+    idx, dist = _nearest_lr(u, v, h, w)
+    c = _gather(color_lr, idx)
+    lo, hi = _neighbourhood_box(color_lr)
+    lo, hi = _gather(lo, idx), _gather(hi, idx)
+    if history_filter not in ("catmull-rom", "bilinear"):
+        raise ValueError(f"history_filter must be catmull-rom or bilinear, got {history_filter!r}")
+    hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, None,
+                      cubic=history_filter == "catmull-rom")
+    hc = torch.maximum(torch.minimum(hc, hi), lo)
+    wgt = torch.exp(-2.29 * (dist * s) ** 2)
+    num = (1.0 - blend) * hc + (blend * wgt) * c
+    out = num / ((1.0 - blend) + blend * wgt)
+    return sanitize_values(torch.where(ok[None], out, spatial))
+
+
+def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor,
+               scale: int, jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
+               hist_depth: torch.Tensor | None = None, a: float = SR_A, b: float = SR_B,
+               t_d: float = 0.02, t_b: float = 0.13, phases: int = LUT_PHASES,
+               normalize: bool = True):
+    """Mob-FGSR super resolution of one rendered frame (paper Sec. 3.5, Eq. 2).
+
+    The HR history is warped by the vectors with the Catmull-Rom LUT (``phases``
+    sub-pixel phases, 4x4 taps), rejected where the previous frame shows a nearer surface
+    (disocclusion, relative t_d) or off-screen, and where its brightness differs from the current frame's by more than t_b
+    (the paper's T_B) clamped to the colour AABB of the 3x3 LR samples around the pixel.
+    Eq. 2: q = a * sum_s (1 - b d_s) s / n + (1 - a) q_w over the LR samples s within one
+    LR pixel of q (d_s in LR pixels). normalize: divide by the sum of the weights instead
+    of the sample count n (the paper's n darkens the image by the mean weight; the public
+    code normalises). Where the history is rejected, and on the first frame: the
+    Catmull-Rom LUT resampling of the jittered input. Returns (3, s*h, s*w)."""
+    from fgcli.ops.blend import brightness_difference
+
+    color_lr = sanitize_values(check_tensor(color_lr, "color", 3, allow_batch=False))
+    s = check_scale(scale)
+    h, w = color_lr.shape[-2:]
+    spatial = upscale(color_lr, s, jitter, phases=phases)
+    if hist_color is None or hist_depth is None:
+        return spatial
+    u, v = hr_positions(h, w, s, jitter, color_lr.device)
+    iu, iv = u.round(), v.round()
+    acc = torch.zeros((3,) + tuple(u.shape), dtype=torch.float32, device=color_lr.device)
+    wsum = torch.zeros(tuple(u.shape), dtype=torch.float32, device=color_lr.device)
+    n = torch.zeros_like(wsum)
+    flat = color_lr.reshape(3, -1)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            sx, sy = iu + dx, iv + dy
+            inb = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+            d = torch.sqrt((u - sx) ** 2 + (v - sy) ** 2)
+            use = inb & (d <= 1.0)
+            wt = torch.where(use, 1.0 - b * d, torch.zeros_like(d))
+            idx = (sy.clamp(0, h - 1) * w + sx.clamp(0, w - 1)).long().reshape(-1)
+            acc += flat[:, idx].reshape(acc.shape) * wt
+            wsum += wt
+            n += use.float()
+    cur = acc / (wsum if normalize else n).clamp_min(1e-6)
+    cur = torch.where((n > 0)[None], cur, spatial)
+    hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
+    idx, _ = _nearest_lr(u, v, h, w)
+    lo, hi = _neighbourhood_box(color_lr)
+    lo, hi = _gather(lo, idx), _gather(hi, idx)
+    changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
+    hc = torch.where(changed[None], torch.maximum(torch.minimum(hc, hi), lo), hc)
+    out = a * cur + (1.0 - a) * hc
+    return sanitize_values(torch.where(ok[None], out, spatial))
