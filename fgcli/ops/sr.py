@@ -162,11 +162,17 @@ def upsample_geometry(depth: torch.Tensor, mv: torch.Tensor | None, scale: int,
     return out_d, out_mv, out_extra
 
 
-def _neighbourhood_box(color: torch.Tensor):
-    """Per-LR-pixel min and max of its 3x3 neighbourhood (edges replicate): (C, h, w) x2."""
+def _neighbourhood_box(color: torch.Tensor, gamma: float | None = None):
+    """Per-LR-pixel min and max of its 3x3 neighbourhood (edges replicate): (C, h, w) x2.
+    gamma: variance clipping, the box narrowed to mean +- gamma * standard deviation."""
     p = F.pad(color[None], (1, 1, 1, 1), mode="replicate")
     hi = F.max_pool2d(p, 3, stride=1)[0]
     lo = -F.max_pool2d(-p, 3, stride=1)[0]
+    if gamma is not None:
+        mu = F.avg_pool2d(p, 3, stride=1)[0]
+        sd = (F.avg_pool2d(p * p, 3, stride=1)[0] - mu * mu).clamp_min(0.0).sqrt()
+        lo = torch.maximum(lo, mu - gamma * sd)
+        hi = torch.minimum(hi, mu + gamma * sd)
     return lo, hi
 
 
@@ -201,7 +207,12 @@ def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=
                            mode="bilinear", padding_mode="border", align_corners=False)[0]
     ix = px.round().clamp(0, W - 1).long()
     iy = py.round().clamp(0, H - 1).long()
-    hd = hist_depth.reshape(-1)[(iy * W + ix).reshape(-1)].reshape(H, W)
+    # the farthest history depth of the 3x3 pixels around the reprojected place: a slanted
+    # surface (a floor at a grazing angle) changes depth faster than t_d from pixel to
+    # pixel, and only a surface nearer than all of them covered this one
+    far = F.max_pool2d(torch.nan_to_num(hist_depth, nan=float("inf"))[None], 3, stride=1,
+                       padding=1)[0]
+    hd = far.reshape(-1)[(iy * W + ix).reshape(-1)].reshape(H, W)
     cd = depth_hr[0]
     # disoccluded: the previous frame shows a nearer surface there (something covered this
     # one); a farther one is the same surface seen from a camera that moved toward it
@@ -209,40 +220,86 @@ def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=
     return hc, inside & ~covered
 
 
+def _gaussian_samples(color_lr: torch.Tensor, u: torch.Tensor, v: torch.Tensor, scale: int,
+                      sigma: float):
+    """The 3x3 LR samples around each HR pixel, weighted exp(-sigma d^2) (d: distance from
+    the sample's jittered place to the pixel centre, in HR pixels): (weighted mean (3, H, W),
+    sum of the weights (H, W))."""
+    h, w = color_lr.shape[-2:]
+    iu, iv = u.round(), v.round()
+    acc = torch.zeros((3,) + tuple(u.shape), dtype=torch.float32, device=color_lr.device)
+    wsum = torch.zeros(tuple(u.shape), dtype=torch.float32, device=color_lr.device)
+    flat = color_lr.reshape(3, -1)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            sx, sy = iu + dx, iv + dy
+            inb = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+            d2 = ((u - sx) ** 2 + (v - sy) ** 2) * float(scale * scale)
+            wt = torch.where(inb, torch.exp(-sigma * d2), torch.zeros_like(d2))
+            idx = (sy.clamp(0, h - 1) * w + sx.clamp(0, w - 1)).long().reshape(-1)
+            acc += flat[:, idx].reshape(acc.shape) * wt
+            wsum += wt
+    return acc / wsum.clamp_min(1e-12)[None], wsum
+
+
 def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, scale: int,
          jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
-         hist_depth: torch.Tensor | None = None, blend: float = 0.2, t_d: float = 0.02,
-         history_filter: str = "catmull-rom"):
-    """One frame of TAA upsampling. color_lr (3, h, w) jittered LR colour; depth_hr,
-    mv_hr: the frame's geometry at HR (upsample_geometry); hist_*: the previous output and
-    its depth at HR (None: no history). The history is reprojected by the vectors
-    (history_filter: catmull-rom or bilinear), rejected where off-screen or where the
-    previous frame shows a nearer surface (disocclusion, relative t_d), clamped to the colour
-    range of the 3x3 LR samples around the pixel, and blended exponentially with the
-    nearest LR sample, whose weight falls with its distance to the HR pixel centre
-    (exp(-2.29 d^2), d in HR pixels, UE's TAAU): out = ((1-blend) h + blend w c) /
-    ((1-blend) + blend w). Without valid history: the bicubic upscale.
-    Returns the HR colour (3, s*h, s*w)."""
+         hist_depth: torch.Tensor | None = None, hist_weight: torch.Tensor | None = None,
+         blend: float = 0.1, t_d: float = 0.02, history_filter: str = "catmull-rom",
+         sigma: float = 2.29, gamma: float | None = None, reactive: float | None = None):
+    """One frame of TAA upsampling (UE4-style TAAU with an accumulated sample weight, as
+    FSR 2 keeps one). color_lr (3, h, w) jittered LR colour; depth_hr, mv_hr: the frame's
+    geometry at HR (upsample_geometry); hist_*: the previous output, its depth and its
+    accumulated weight (H, W) at HR (None: no history).
+
+    The current estimate is the 3x3 LR samples around each HR pixel weighted
+    exp(-sigma d^2) (d from the sample's jittered place to the pixel centre, HR pixels;
+    2.29: UE's Blackman-Harris fit). The history is reprojected by the vectors
+    (history_filter: catmull-rom or bilinear), rejected off-screen or where the previous
+    frame shows a nearer surface (disocclusion, relative t_d), clamped to the colour range
+    of the 3x3 LR samples around the pixel, and blended by weight:
+    out = (h W_h + c W_c) / (W_h + W_c), W_h capped at 1/blend - 1 (the usual exponential
+    blend once converged; a plain average while the history is young). Without valid
+    history: the bicubic upscale. Returns (colour (3, s*h, s*w), weight (s*h, s*w))."""
     color_lr = sanitize_values(check_tensor(color_lr, "color", 3, allow_batch=False))
     s = check_scale(scale)
     h, w = color_lr.shape[-2:]
-    spatial = upscale(color_lr, s, jitter)
-    if hist_color is None or hist_depth is None:
-        return spatial
-    u, v = hr_positions(h, w, s, jitter, color_lr.device)
-    idx, dist = _nearest_lr(u, v, h, w)
-    c = _gather(color_lr, idx)
-    lo, hi = _neighbourhood_box(color_lr)
-    lo, hi = _gather(lo, idx), _gather(hi, idx)
     if history_filter not in ("catmull-rom", "bilinear"):
         raise ValueError(f"history_filter must be catmull-rom or bilinear, got {history_filter!r}")
-    hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, None,
+    spatial = upscale(color_lr, s, jitter)
+    H, W = h * s, w * s
+    if hist_color is None or hist_depth is None or hist_weight is None:
+        return spatial, torch.ones((H, W), dtype=torch.float32, device=color_lr.device)
+    u, v = hr_positions(h, w, s, jitter, color_lr.device)
+    cur, wcur = _gaussian_samples(color_lr, u, v, s, sigma)
+    mv = sanitize_mv(mv_hr)
+    hc, ok = _history(hist_color, hist_depth, depth_hr, mv, t_d, None,
                       cubic=history_filter == "catmull-rom")
-    hc = torch.maximum(torch.minimum(hc, hi), lo)
-    wgt = torch.exp(-2.29 * (dist * s) ** 2)
-    num = (1.0 - blend) * hc + (blend * wgt) * c
-    out = num / ((1.0 - blend) + blend * wgt)
-    return sanitize_values(torch.where(ok[None], out, spatial))
+    gx = torch.arange(W, device=mv.device)[None, :].expand(H, W)
+    gy = torch.arange(H, device=mv.device)[:, None].expand(H, W)
+    px = (gx + mv[0]).round().clamp(0, W - 1).long()
+    py = (gy + mv[1]).round().clamp(0, H - 1).long()
+    hw = hist_weight.reshape(-1)[(py * W + px).reshape(-1)].reshape(H, W)
+    hw = torch.where(ok, torch.nan_to_num(hw, nan=0.0).clamp_min(0.0), torch.zeros_like(hw))
+    idx, _ = _nearest_lr(u, v, h, w)
+    lo, hi = _neighbourhood_box(color_lr, gamma)
+    hcc = torch.maximum(torch.minimum(hc, _gather(hi, idx)), _gather(lo, idx))
+    if reactive is not None:
+        from fgcli.ops.blend import brightness_difference
+
+        # the history's distance to the current estimate, against the spread of the
+        # samples around the pixel: aliasing moves the estimate within the spread, a
+        # change of shading (animated texture, reflection) moves it out of it
+        lo_g, hi_g = _gather(lo, idx), _gather(hi, idx)
+        diff = brightness_difference(hc.clamp(0, BIG), cur.clamp(0, BIG))[0]
+        spread = brightness_difference(hi_g.clamp(0, BIG), lo_g.clamp(0, BIG))[0]
+        hw = hw * (1.0 - (diff - spread * reactive).clamp_min(0.0) / 0.1).clamp(0.0, 1.0)
+    hc = hcc
+    out = (hc * hw + cur * wcur) / (hw + wcur).clamp_min(1e-12)
+    has = hw > 0
+    out = torch.where(has[None], out, spatial)
+    weight = torch.where(has, (hw + wcur).clamp(max=1.0 / blend - 1.0), torch.ones_like(hw))
+    return sanitize_values(out), weight
 
 
 def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor,

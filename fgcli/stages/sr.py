@@ -37,7 +37,8 @@ class _Recurrent(Stage):
     def _state(self, ctx) -> dict:
         return ctx["state"].store.setdefault(f"sr:{self.name}", {})
 
-    def step(self, ctx, hist_color, hist_depth):
+    def step(self, ctx, st: dict):
+        """The HR colour; may keep more state in st (besides color, depth, size)."""
         raise NotImplementedError
 
     def run(self, ctx):
@@ -45,7 +46,7 @@ class _Recurrent(Stage):
         size = tuple(ctx["depth_hr"].shape[-2:])
         if st.get("size") != size:  # a new size (or the first frame): no history
             st.clear()
-        color = self.step(ctx, st.get("color"), st.get("depth"))
+        color = self.step(ctx, st)
         st.update(color=color, depth=ctx["depth_hr"], size=size)
         return {"color": color, **_geometry(ctx)}
 
@@ -54,23 +55,27 @@ class _Recurrent(Stage):
 class TAAU(_Recurrent):
     name = "taau"
     help = ("TAA upsampling: the HR history reprojected by the vectors (Catmull-Rom), "
-            "rejected off-screen and where a nearer surface covered it, clamped to the 3x3 LR neighbourhood's "
-            "colour range, blended exponentially with the nearest jittered LR sample "
-            "(weight exp(-2.29 d^2), d in HR pixels). First frame: the bicubic upscale.")
-    options = (Option("blend", "float", 0.2, "weight of the new sample (exponential blend; "
-                      "0.2 and Catmull-Rom chosen on held-out random scenes)",
+            "rejected off-screen and where a nearer surface covered it, clamped to the 3x3 "
+            "LR neighbourhood's colour range, blended with the 3x3 jittered LR samples "
+            "weighted exp(-2.29 d^2) (d in HR pixels) by an accumulated per-pixel weight "
+            "(an average while the history is young, exponential once it is capped). First "
+            "frame and rejected pixels: the bicubic upscale.")
+    options = (Option("blend", "float", 0.1, "weight of the new samples once the history "
+                      "has converged (its weight is capped at 1/blend - 1)",
                       range=(0.01, 1.0)),
                Option("t_d", "float", 0.02, "relative depth difference at which a nearer "
                       "surface in the history rejects it", range=(0.0, 10.0)),
                Option("history_filter", "choice", "catmull-rom", "resampling of the "
                       "reprojected history", choices=("catmull-rom", "bilinear")))
 
-    def step(self, ctx, hc, hd):
+    def step(self, ctx, st):
         from fgcli.ops.sr import taau
 
-        return taau(ctx["color1"], ctx["depth_hr"], ctx["mv_hr"], ctx["scale"],
-                    ctx["jitter1"], hc, hd, blend=self.blend, t_d=self.t_d,
-                    history_filter=self.history_filter)
+        color, st["weight"] = taau(ctx["color1"], ctx["depth_hr"], ctx["mv_hr"], ctx["scale"],
+                                   ctx["jitter1"], st.get("color"), st.get("depth"),
+                                   st.get("weight"), blend=self.blend, t_d=self.t_d,
+                                   history_filter=self.history_filter)
+        return color
 
 
 @register
@@ -95,9 +100,9 @@ class MobFGSRSR(_Recurrent):
                Option("normalize", "bool", True, "divide Eq. 2's sum by the sum of its "
                       "weights (false: by the sample count n, as printed in the paper)"))
 
-    def step(self, ctx, hc, hd):
+    def step(self, ctx, st):
         from fgcli.ops.sr import mobfgsr_sr
 
         return mobfgsr_sr(ctx["color1"], ctx["depth_hr"], ctx["mv_hr"], ctx["scale"],
-                          ctx["jitter1"], hc, hd, a=self.a, b=self.b, t_d=self.t_d,
+                          ctx["jitter1"], st.get("color"), st.get("depth"), a=self.a, b=self.b, t_d=self.t_d,
                           t_b=self.t_b, phases=self.phases, normalize=self.normalize)
