@@ -246,7 +246,7 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
          jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
          hist_depth: torch.Tensor | None = None, hist_weight: torch.Tensor | None = None,
          blend: float = 0.1, t_d: float = 0.02, history_filter: str = "catmull-rom",
-         sigma: float = 2.29, gamma: float | None = None, reactive: float | None = None):
+         sigma: float = 2.29, gamma: float | None = None, reactive: float | None = 0.25):
     """One frame of TAA upsampling (UE4-style TAAU with an accumulated sample weight, as
     FSR 2 keeps one). color_lr (3, h, w) jittered LR colour; depth_hr, mv_hr: the frame's
     geometry at HR (upsample_geometry); hist_*: the previous output, its depth and its
@@ -259,8 +259,13 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
     frame shows a nearer surface (disocclusion, relative t_d), clamped to the colour range
     of the 3x3 LR samples around the pixel, and blended by weight:
     out = (h W_h + c W_c) / (W_h + W_c), W_h capped at 1/blend - 1 (the usual exponential
-    blend once converged; a plain average while the history is young). Without valid
-    history: the bicubic upscale. Returns (colour (3, s*h, s*w), weight (s*h, s*w))."""
+    blend once converged; a plain average while the history is young). reactive: the
+    history's weight falls to 0 as its brightness difference to the current estimate
+    exceeds `reactive` x the spread of the 3x3 samples by 0.1 (a change of shading the
+    vectors do not explain: animated textures, reflections, moving shadows; aliasing stays
+    within the spread); None: off. gamma: variance clipping of the clamp box (None: min/max).
+    Without valid history: the bicubic upscale. Returns (colour (3, s*h, s*w), weight
+    (s*h, s*w))."""
     color_lr = sanitize_values(check_tensor(color_lr, "color", 3, allow_batch=False))
     s = check_scale(scale)
     h, w = color_lr.shape[-2:]

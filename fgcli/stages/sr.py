@@ -66,7 +66,11 @@ class TAAU(_Recurrent):
                Option("t_d", "float", 0.02, "relative depth difference at which a nearer "
                       "surface in the history rejects it", range=(0.0, 10.0)),
                Option("history_filter", "choice", "catmull-rom", "resampling of the "
-                      "reprojected history", choices=("catmull-rom", "bilinear")))
+                      "reprojected history", choices=("catmull-rom", "bilinear")),
+               Option("reactive", "float", 0.25, "drop the history where its brightness "
+                      "differs from the current samples by more than this x their spread "
+                      "(shading the vectors do not explain); 0 = off; chosen on held-out "
+                      "random scenes", range=(0.0, 100.0)))
 
     def step(self, ctx, st):
         from fgcli.ops.sr import taau
@@ -74,7 +78,8 @@ class TAAU(_Recurrent):
         color, st["weight"] = taau(ctx["color1"], ctx["depth_hr"], ctx["mv_hr"], ctx["scale"],
                                    ctx["jitter1"], st.get("color"), st.get("depth"),
                                    st.get("weight"), blend=self.blend, t_d=self.t_d,
-                                   history_filter=self.history_filter)
+                                   history_filter=self.history_filter,
+                                   reactive=self.reactive or None)
         return color
 
 
