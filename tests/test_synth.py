@@ -452,14 +452,31 @@ def test_cli_synth(tmp_path):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_shipped_sample_data(name):
-    """Every scene ships its input (0, 2, ..., 32) and ground truth (1, 3, ..., 33), and the
-    files are what the scene file renders today."""
+    """Every scene ships its input (0, 2, ..., 32), its half-resolution jittered input
+    (lowres: 0, 2, ..., 32; lowres_gbuffer: the same with every odd input frame
+    G-buffer-only) and ground truth (0, 1, ..., 33: the in-between and after frames, and
+    the full-resolution frame at every input time), and the files are what the scene file
+    renders today."""
+    from fgcli.synth.scene import load_scene as _load
+
     base = os.path.join(SAMPLES, name)
     inp = sorted(f for f in os.listdir(os.path.join(base, "input")) if f.endswith(".exr"))
     gt = sorted(f for f in os.listdir(os.path.join(base, "gt")) if f.endswith(".exr"))
     assert inp == [f"{name}.{n:04d}.exr" for n in range(0, 33, 2)]
-    assert gt == [f"{name}.{n:04d}.exr" for n in range(1, 34, 2)]
-    for sub in ("input", "gt"):
+    assert gt == [f"{name}.{n:04d}.exr" for n in range(0, 34)]
+    jit = _load(os.path.join(SCENES, f"{name}.toml"), add_effects=("jitter",))
+    for sub in ("lowres", "lowres_gbuffer"):
+        low = sorted(f for f in os.listdir(os.path.join(base, sub)) if f.endswith(".exr"))
+        assert low == inp
+        for n in (0, 2, 4):
+            h = read_header(os.path.join(base, sub, f"{name}.{n:04d}.exr"))
+            assert (h.width, h.height) == (128, 72)
+            assert h.attributes["fgen:synth_hash"] == jit.hash
+            assert "fgen:jitter_x" in h.attributes and "fgen:jitter_y" in h.attributes
+            names = {c for _, c, _ in h.all_channels()}
+            shaded = sub == "lowres" or n % 4 == 0
+            assert ("R" in names) == shaded and {"Z", "mv.x", "N.x", "albedo.R"} <= names
+    for sub in ("input", "gt", "lowres", "lowres_gbuffer"):
         assert os.path.isfile(os.path.join(base, sub, "cameras.json"))
     sc = load_scene(os.path.join(SCENES, f"{name}.toml"))
     path = os.path.join(base, "gt", f"{name}.0013.exr")

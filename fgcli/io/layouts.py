@@ -296,7 +296,10 @@ class MappedLayout:
         else:
             arrays = exr.read_channels(header.path, refs, header)
         w, h = header.width, header.height
-        cpart = header.parts[info.part_of("color")]
+        # the camera and attributes come with the colour (a G-buffer-only frame: with the
+        # first field read)
+        main = "color" if "color" in info.names else next(iter(want), None)
+        cpart = header.parts[info.part_of(main) if main else 0]
         cam, _ = cameras.from_header_attributes(cpart.attributes)
         out: dict[str, np.ndarray] = {}
         valid: dict[str, np.ndarray] = {}

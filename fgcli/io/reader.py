@@ -242,8 +242,9 @@ class SequenceReader:
 
         header = self._header(k, self.all_files[k])
         try:
+            # a skipped file may be G-buffer-only (no colour): only its vectors are read
             raw = self.layout.read_raw(header, k, view=self.view, fields={"mv"},
-                                       optional={"depth"})
+                                       optional={"depth", "color"})
             if self._derive:
                 self._derive_mv(raw)
         except InputError as e:
