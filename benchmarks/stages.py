@@ -254,6 +254,8 @@ def main():
     with torch.inference_mode():
         for name in names:
             p = pl.load(name)
+            if p.scale_only:  # super-resolution baselines: the --scale 2 table below
+                continue
             for mode in p.modes:
                 stages = p.build(mode)
                 tms = {b: Timings() for b in backends}
@@ -339,6 +341,10 @@ def main():
                                       f"{rep['stages']}; vs CPU: {vs}" + "".join(
                                           f"\n    {n} x {site}" for site, n in rep["sites"]))
                 sys.stdout.flush()
+    sr_names = [n for n in names if pl.load(n).scale_only or pl.load(n).has_sr]
+    if sr_names:
+        result["scale2"] = scale2_rows(sr_names, f0, f1, args.repeat, sync, backends[-1],
+                                       statistics.median(copy_samples))
     result["copy_ms"] = statistics.median(copy_samples)
     print(f"\nreference over the run: copy_ms {result['copy_ms']:.2f} (median of "
           f"{len(copy_samples)} copies, {min(copy_samples):.2f}-{max(copy_samples):.2f}); "
@@ -354,6 +360,58 @@ def main():
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)
         print(f"\n(JSON: {args.json})")
+
+
+def half_res(f, offset: int):
+    """The frame as a half-resolution jittered render: every other pixel from (offset,
+    offset), vectors halved; its jitter (offset + 0.5) / 2 - 0.5 LR pixels in x and y."""
+    j = (offset + 0.5) / 2 - 0.5
+    sl = (slice(None), slice(offset, None, 2), slice(offset, None, 2))
+    return f.replace(color=f.color[sl].contiguous(), depth=f.depth[sl].contiguous(),
+                     mv=(f.mv[sl] * 0.5).contiguous(), alpha=None, normal=None, albedo=None,
+                     roughness=None, mv_valid=None, data_window=None, overscan=None,
+                     header={**f.header, "fgen:jitter_x": j, "fgen:jitter_y": j})
+
+
+def scale2_rows(names, f0, f1, repeat, sync, backend, ref) -> dict:
+    """--scale 2 at the benchmark's size as the OUTPUT size: the input is the frames at
+    half resolution (jittered), as a render farm or engine renders for super resolution.
+    Per pipeline and mode: ms of the rendered frame's reconstruction (SS, with history) and
+    of one generated frame (ESS) at the output size, per stage."""
+    from fgcli import pipeline as pl
+    from fgcli.pipeline import Timings
+    from fgcli.runner import RunState
+    from fgcli.sr import Reconstructor, generate
+
+    lr = [half_res(f0, 0), half_res(f1, 1)]
+    H, W = f1.color.shape[-2:]
+    print(f"\n--scale 2: input {lr[0].width}x{lr[0].height} (jittered), output {W}x{H}; "
+          f"SS = the rendered frame reconstructed (with history), ESS = one generated frame; "
+          f"{backend} kernels for the generation stages")
+    print("| pipeline | mode | SS ms/frame | ESS ms/frame | x copy (SS + ESS) | stages (median ms) |")
+    print("|---|---|---|---|---|---|")
+    out = {}
+    for name in names:
+        p = pl.load(name)
+        for mode in p.modes:
+            tm_ss, tm_ess = Timings(), Timings()
+            for _ in range(repeat + 1):
+                rec = Reconstructor(p, 2, lambda n: lr[n], [0, 1], backend, sync)
+                rec.frame(0)  # the history (not timed)
+                rec.frame(1, tm_ss)
+                generate(p.build(mode), p.has_sr, rec, lr[0], lr[1], 0.5, mode, RunState(), 2,
+                         backend, tm_ess, sync=sync)
+            ss, ess = tm_ss.summary(), tm_ess.summary()
+            st = ", ".join([f"sr:{k} {v:.1f}" for k, v in ss["stages"].items()]
+                           + [f"{k} {v:.1f}" for k, v in ess["stages"].items()])
+            tot = ss["ms_per_frame"] + ess["ms_per_frame"]
+            print(f"| {p.label} | {mode} | {ss['ms_per_frame']:.1f} | {ess['ms_per_frame']:.1f} "
+                  f"| {tot / ref:.1f} | {st} |")
+            out.setdefault(p.label, {})[mode] = {
+                "ss_ms_per_frame": ss["ms_per_frame"], "ess_ms_per_frame": ess["ms_per_frame"],
+                "x_copy": tot / ref, "ss_stages": ss["stages"], "ess_stages": ess["stages"]}
+            sys.stdout.flush()
+    return out
 
 
 def sync_report(stages, f0, f1, mode, backend) -> dict:

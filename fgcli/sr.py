@@ -26,9 +26,13 @@ JITTER_KEYS = ("fgen:jitter_x", "fgen:jitter_y")
 
 
 def frame_jitter(f: Frame) -> tuple[float, float] | None:
-    """A frame's sub-pixel jitter (input pixels, x right, y down): the header's
-    fgen:jitter_x/y (fgen synth; sidecar `jitter_px` entries are put there by the reader).
-    None: the frame carries none."""
+    """A frame's sub-pixel jitter (input pixels, x right, y down: pixel (col, row) was
+    sampled at (col + 0.5 + jx, row + 0.5 + jy) of the unjittered grid), from, in order:
+    the header's fgen:jitter_x/y (fgen synth), a sidecar's per-frame `jitter_px` (the
+    reader puts it in the header), or an off-centre principal point of a perspective
+    projection (the jittered projection engines render with: jx = P[0][2] W / 2,
+    jy = -P[1][2] H / 2; only offsets within one pixel count as jitter, a larger one is
+    a lens shift). None: the frame carries none."""
     h = f.header or {}
     if all(k in h for k in JITTER_KEYS):
         try:
@@ -37,6 +41,15 @@ def frame_jitter(f: Frame) -> tuple[float, float] | None:
             raise InputError(f"jitter attributes are not numbers: "
                              f"{h[JITTER_KEYS[0]]!r}, {h[JITTER_KEYS[1]]!r}",
                              file=f.source, frame=f.number) from None
+    cam = f.camera
+    if cam is not None:
+        import numpy as np
+
+        p = np.asarray(cam.projection, dtype=np.float64)
+        if p.shape == (4, 4) and p[3, 2] == -1.0 and p[3, 3] == 0.0:  # perspective
+            jx, jy = p[0, 2] * f.width / 2.0, -p[1, 2] * f.height / 2.0
+            if (jx, jy) != (0.0, 0.0) and abs(jx) <= 1.0 and abs(jy) <= 1.0:
+                return float(jx), float(jy)
     return None
 
 

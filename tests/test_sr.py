@@ -86,6 +86,42 @@ def test_upscale_reads_the_samples_at_their_jittered_places():
         assert good < 0.02
 
 
+@pytest.mark.parametrize("size", [(1, 1), (2, 3), (7, 5), (12, 17)])
+@pytest.mark.parametrize("scale", [2, 3])
+@pytest.mark.parametrize("phases", [None, 32])
+def test_phase_filters_equal_the_per_pixel_reference(size, scale, phases):
+    """upscale and upsample_geometry work per phase of the HR grid (shifted LR images,
+    scalar weights); they must give what the per-pixel evaluation at hr_positions gives:
+    resample_cubic for the colour (float32 weights from the same formula: equal within a
+    few ulp of the values' range), and for the geometry the 2x2 candidates' nearest
+    surface, exactly."""
+    h, w = size
+    g = torch.Generator().manual_seed(h * 100 + w)
+    img = torch.rand(3, h, w, generator=g) * 4.0
+    depth = torch.rand(1, h, w, generator=g) + 0.5
+    mv = torch.randn(2, h, w, generator=g)
+    for j in ((0.0, 0.0), (0.25, -0.25), (-0.4375, 0.2962963), (1.0, -1.0)):
+        u, v = S.hr_positions(h, w, scale, j)
+        ref = S.resample_cubic(img, u, v, phases)
+        got = S.upscale(img, scale, j, phases)
+        assert got.shape == ref.shape
+        assert torch.allclose(got, ref, rtol=0, atol=4 * 4.0 * 2 ** -23 * 16), j
+        d, m, _ = S.upsample_geometry(depth, mv, scale, j)
+        x0, y0 = u.floor().long(), v.floor().long()
+        best_d = best_i = None
+        for dy in (0, 1):
+            for dx in (0, 1):
+                i = (y0 + dy).clamp(0, h - 1) * w + (x0 + dx).clamp(0, w - 1)
+                dd = depth.reshape(-1)[i]
+                if best_d is None:
+                    best_d, best_i = dd, i
+                else:
+                    take = dd < best_d
+                    best_d, best_i = torch.where(take, dd, best_d), torch.where(take, i, best_i)
+        assert torch.equal(d[0], best_d)
+        assert torch.equal(m, mv.reshape(2, -1)[:, best_i.reshape(-1)].reshape(m.shape) * scale)
+
+
 def test_upscale_identity_and_constants():
     img = torch.rand(3, 5, 7)
     assert torch.equal(S.upscale(img, 1), img)
@@ -307,21 +343,28 @@ def test_taau_chunks_are_byte_identical_to_one_run(lowres, tmp_path):
     assert_same_frames(ref, out)
 
 
+def _without_jitter(src, dst):
+    """A copy of a sequence whose headers carry no fgen:jitter_x/y."""
+    from fgcli.io import exr
+
+    shutil.copytree(src, dst)
+    for f in os.listdir(dst):
+        if f.endswith(".exr"):
+            p = str(dst / f)
+            h = exr.read_header(p)
+            names = [c for _, c, _ in h.all_channels()]
+            chans = exr.read_channels(p, [(0, c) for c in names], h)
+            attrs = {k: v for k, v in h.attributes.items() if not k.startswith("fgen:jitter")}
+            exr.write_exr(p, {n: chans[(0, n)] for n in names},
+                          {n: "float" for n in names}, attrs, "zip")
+    return dst
+
+
 def test_input_without_jitter_is_a_warning_not_an_error(lowres, tmp_path):
     """Frames without jitter metadata are scored as jitter 0, with a warning."""
     from fgcli.io import exr
 
-    plain = tmp_path / "plain"
-    shutil.copytree(lowres / "lowres", plain)
-    for f in os.listdir(plain):
-        if f.endswith(".exr"):
-            p = str(plain / f)
-            h = exr.read_header(p)
-            chans = exr.read_channels(p, [(0, c) for _, c, _ in h.all_channels()], h)
-            names = [c for _, c, _ in h.all_channels()]
-            attrs = {k: v for k, v in h.attributes.items() if not k.startswith("fgen:jitter")}
-            exr.write_exr(p, {n: chans[(0, n)] for n in names},
-                          {n: "float" for n in names}, attrs, "zip")
+    plain = _without_jitter(lowres / "lowres", tmp_path / "plain")
     r = _run(["eval", str(plain), "--gt", str(lowres / "gt"), "--scale", "2", "--pipeline",
               "upscale", "--no-hdr-flip", "--no-progress"])
     assert "jitter" in r.stderr and "scored as jitter 0" in r.stderr
@@ -341,3 +384,37 @@ def test_scaled_outputs_carry_consistent_geometry(lowres, tmp_path):
     f_in, f_out = src.read(0), got.read(0)
     ins = set(np.unique(f_in.depth.numpy()).tolist())
     assert set(np.unique(f_out.depth.numpy()).tolist()) <= ins
+
+
+def test_jitter_from_a_sidecar_and_from_the_projection(lowres, tmp_path):
+    """jitter_px in cameras.json, and an off-centre principal point: a jittered projection
+    moves a point's image by -jitter (the pixel at c + 0.5 shows what the unjittered grid
+    has at c + 0.5 + jx), which frame_jitter reads back."""
+    from fgcli.frame import Camera
+    from fgcli.io.cameras import project
+    from fgcli.io.options import open_input
+    from fgcli.sr import frame_jitter
+
+    d = _without_jitter(lowres / "lowres", tmp_path / "side")
+    side = json.loads((d / "cameras.json").read_text())
+    for e in side["frames"]:
+        e["jitter_px"] = [0.125, -0.375]
+    (d / "cameras.json").write_text(json.dumps(side))
+    r = open_input(str(d))
+    f = r.read(r.numbers[1])
+    assert frame_jitter(f) == (0.125, -0.375)
+    f.header.pop("fgen:jitter_x"), f.header.pop("fgen:jitter_y")
+    cam = f.camera
+    W, H = f.width, f.height
+    jx, jy = 0.3, -0.2
+    p = np.array(cam.projection, dtype=np.float64)
+    p[0, 2], p[1, 2] = 2 * jx / W, -2 * jy / H
+    jittered = Camera(cam.world_to_camera, p)
+    pt = np.linalg.inv(np.asarray(cam.world_to_camera, np.float64)) @ np.array([0.3, -0.2, -5.0, 1.0])
+    a = project(cam, pt[None, :3], W, H)[0, :2]
+    b = project(jittered, pt[None, :3], W, H)[0, :2]
+    assert b[0] - a[0] == pytest.approx(-jx, abs=1e-6)
+    assert b[1] - a[1] == pytest.approx(-jy, abs=1e-6)
+    got = frame_jitter(f.replace(camera=jittered))
+    assert got == pytest.approx((jx, jy), abs=1e-9)
+    assert frame_jitter(f) is None  # the synth's projection is the unjittered one

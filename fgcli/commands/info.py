@@ -91,6 +91,10 @@ def describe(reader, do_scan: bool = False, layout_option=None) -> dict:
         "camera_source": reader.camera_source,
         "notes": reader.notes,
         "no_backward_vectors": reader.frames_without_backward(),
+        # frames with G-buffers and no colour (not shaded): not among "frames"
+        "gbuffer_only": list(getattr(reader, "gbuffer_only", []) or []),
+        "jitter": all(k in h.parts[0].attributes for k in ("fgen:jitter_x", "fgen:jitter_y"))
+        or bool(getattr(reader, "sidecar_jitter", None)),
         "tiled": any(p.tiled for p in h.parts),
         "data_window_smaller": any(not p.full_data_window and not p.overscan
                                    for p in h.parts),
@@ -107,6 +111,13 @@ def _text(d: dict) -> str:
              f"resolution:  {d['width']}x{d['height']}",
              f"frames:      {d['first']}-{d['last']} ({d['count']} frames, step {d['step']})"
              f"  {d['pattern']}"]
+    if d.get("gbuffer_only"):
+        g = d["gbuffer_only"]
+        lines.append(f"G-buffer-only: {len(g)} frames without colour (depth, vectors, "
+                     f"G-buffers only; never read as colour): "
+                     f"{', '.join(map(str, g[:12]))}{', ...' if len(g) > 12 else ''}")
+    if d.get("jitter"):
+        lines.append("jitter:      per-frame sub-pixel jitter (a render for --scale)")
     if d["views"]:
         lines.append(f"view:        {d['view']} (views: {', '.join(d['views'])})")
     names = [f for f in d["fields"] if f != "mv_valid"]
@@ -167,7 +178,7 @@ def _text(d: dict) -> str:
 def cmd(folder, as_json, do_scan, **kw):
     from fgcli.io.options import open_input
 
-    reader = open_input(folder, **kw)
+    reader = open_input(folder, gbuffer_frames=True, **kw)
     reader.check_sizes()
     d = describe(reader, do_scan, kw.get("layout"))
     if as_json:

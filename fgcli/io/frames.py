@@ -101,6 +101,8 @@ def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
             data = json.load(fh)
         cams = {}
         for e in data["frames"]:
+            if "world_to_camera" not in e and "projection" not in e:
+                continue  # an entry with other facts only (jitter_px)
             w2c = np.asarray(e["world_to_camera"], dtype=np.float64)
             proj = np.asarray(e["projection"], dtype=np.float64)
             if w2c.shape != (4, 4) or proj.shape != (4, 4):
@@ -109,6 +111,29 @@ def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
                 raise ValueError(f"frame {e['frame']}: non-finite matrix values")
             cams[int(e["frame"])] = Camera(w2c, proj)
         return cams
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"bad cameras.json: {e}", file=p) from None
+
+
+def load_sidecar_jitter(folder: str) -> dict[int, tuple[float, float]]:
+    """Per-frame sub-pixel jitter from `cameras.json` ({} when none): entries
+    {"frame": 12, "jitter_px": [jx, jy]} in input pixels, x right, y down (pixel (col, row)
+    was sampled at (col + 0.5 + jx, row + 0.5 + jy) of the unjittered grid)."""
+    p = os.path.join(str(folder), "cameras.json")
+    if not os.path.isfile(p):
+        return {}
+    try:
+        with open(p) as fh:
+            data = json.load(fh)
+        out = {}
+        for e in data.get("frames", []):
+            if "jitter_px" not in e:
+                continue
+            j = [float(v) for v in e["jitter_px"]]
+            if len(j) != 2 or not all(np.isfinite(j)):
+                raise ValueError(f"frame {e['frame']}: jitter_px must be two finite numbers")
+            out[int(e["frame"])] = (j[0], j[1])
+        return out
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"bad cameras.json: {e}", file=p) from None
 

@@ -15,7 +15,7 @@ from fgcli.errors import InputError
 from fgcli.frame import Frame
 from fgcli.io import cameras, exr, layouts, sequence
 from fgcli.io.derive import backward_from_forward
-from fgcli.io.frames import load_sidecar_cameras
+from fgcli.io.frames import load_sidecar_cameras, load_sidecar_jitter
 
 
 class SequenceReader:
@@ -64,6 +64,7 @@ class SequenceReader:
         self.optional = set(optional or ())
         self.width, self.height = self.header0.width, self.header0.height
         self.sidecar = load_sidecar_cameras(self.folder)
+        self.sidecar_jitter = load_sidecar_jitter(self.folder)
         self.nonfinite: dict = {}
         self._warned = False
         self._derive = (self.info.mv_source == "forward"
@@ -146,6 +147,9 @@ class SequenceReader:
                 raw.helpers.add("depth")
         if raw.camera is None and n in self.sidecar:
             raw.camera = self.sidecar[n]
+        if n in self.sidecar_jitter and "fgen:jitter_x" not in raw.attributes:
+            raw.attributes["fgen:jitter_x"], raw.attributes["fgen:jitter_y"] = \
+                self.sidecar_jitter[n]
         win = self._window_of(header)
         raw.data_mask, raw.data_window = (None, None) if win is None else win
         self._fill_sky_vectors(raw)
@@ -353,25 +357,22 @@ class SequenceReader:
 
 def _gbuffer_only(seq, layout, view) -> tuple[list[int], str]:
     """(numbers of the frames without colour channels, path of the first frame with them).
-    InputError when no frame has colour."""
+    A file whose layout cannot be told raises as it would anyway; with no shaded frame at
+    all, nothing is set apart (reading then names the missing colour channels)."""
     gbuf, first = [], None
     for n in seq.frames:
         path = seq.files[n]
         try:
             h = exr.read_header(path)
-            lay = layouts.resolve(layout, h)
-            has = "color" in lay.describe(h, view).names
+            has = "color" in layouts.resolve(layout, h).describe(h, view).names
         except InputError as e:
-            if "color" not in str(e) and "layout" not in str(e):
-                raise e.with_frame(n) from None
-            has = False
+            raise e.with_frame(n) from None
         if has:
             first = first or path
         else:
             gbuf.append(n)
     if first is None:
-        raise InputError("no frame has colour channels (every frame is G-buffer-only)",
-                         file=seq.folder if hasattr(seq, "folder") else None)
+        return [], seq.files[seq.frames[0]]
     return gbuf, first
 
 

@@ -109,57 +109,125 @@ def hr_positions(h: int, w: int, scale: int, jitter=(0.0, 0.0), device="cpu"):
     return xs[None, :].expand(h * s, w * s), ys[:, None].expand(h * s, w * s)
 
 
+# The HR grid over an LR image is periodic: HR pixel X = s*c + p (phase p in 0..s-1) sits at
+# LR sample-index position u = c + off(p), off(p) = (p + 0.5) / s - 0.5 - jx. So every
+# filter whose taps and weights depend only on the fractional position is, per phase, a
+# fixed set of shifted LR images with scalar weights: s^2 small passes over the LR image
+# instead of per-pixel gathers at HR. (resample_cubic at hr_positions is the same filter
+# evaluated per pixel.)
+_PAD = 4  # covers every tap offset for |jitter| <= 1 LR pixel and 4x4 / 3x3 footprints
+
+
+def _offsets(s: int, j: float) -> list[float]:
+    return [(p + 0.5) / s - 0.5 - j for p in range(s)]
+
+
+class _Shifted:
+    """img (C, h, w) padded by _PAD (replicate: edge samples repeat, as clamped indices;
+    zeros: outside reads 0); at(dy, dx) is the image shifted so that pixel (r, c) reads
+    sample (r + dy, c + dx)."""
+
+    def __init__(self, img: torch.Tensor, mode: str = "replicate"):
+        self.h, self.w = img.shape[-2:]
+        if mode == "replicate":
+            self.p = F.pad(img[None], (_PAD,) * 4, mode="replicate")[0]
+        else:
+            self.p = F.pad(img, (_PAD,) * 4)
+
+    def at(self, dy: int, dx: int) -> torch.Tensor:
+        y, x = _PAD + dy, _PAD + dx
+        return self.p[:, y:y + self.h, x:x + self.w]
+
+    def rows(self, dy: int) -> torch.Tensor:
+        """Shifted by dy rows, every (padded) column."""
+        return self.p[:, _PAD + dy:_PAD + dy + self.h, :]
+
+
+def _interleave(planes: list, s: int) -> torch.Tensor:
+    """planes[py][px] (C, h, w) -> (C, s*h, s*w) with HR pixel (s*r + py, s*c + px) =
+    planes[py][px][:, r, c]."""
+    c, h, w = planes[0][0].shape
+    out = torch.empty((c, h, s, w, s), dtype=planes[0][0].dtype, device=planes[0][0].device)
+    for py in range(s):
+        for px in range(s):
+            out[:, :, py, :, px] = planes[py][px]
+    return out.reshape(c, h * s, w * s)
+
+
+def _scalar_weights(frac: float, phases: int | None) -> list[float]:
+    return [float(v) for v in _axis_weights(torch.tensor(frac, dtype=torch.float32), phases)]
+
+
 def upscale(color: torch.Tensor, scale: int, jitter=(0.0, 0.0),
-            phases: int | None = None) -> torch.Tensor:
+            phases: int | None = None, dering: bool = True) -> torch.Tensor:
     """Bicubic (Catmull-Rom), jitter-aware upscale of an LR image (C, h, w) to
-    (C, s*h, s*w): each HR pixel reads the LR samples at their true (jittered) places."""
+    (C, s*h, s*w): each HR pixel reads the 4x4 LR samples around its centre at their true
+    (jittered) places, edges clamped; phases: quantised weights (Mob-FGSR's LUT); dering:
+    each result clamped to the range of its 2x2 nearest samples. The same values as
+    resample_cubic at hr_positions, per phase instead of per pixel."""
     color = check_tensor(color, "color", allow_batch=False)
     s = check_scale(scale)
-    if s == 1 and clean_jitter(jitter) == (0.0, 0.0):
+    jx, jy = clean_jitter(jitter)
+    if s == 1 and (jx, jy) == (0.0, 0.0):
         return sanitize_values(color)
-    u, v = hr_positions(color.shape[-2], color.shape[-1], s, jitter, color.device)
-    return resample_cubic(color, u, v, phases)
+    src = _Shifted(sanitize_values(color))
+    planes = []
+    for oy in _offsets(s, jy):
+        fy = math.floor(oy)
+        wy = _scalar_weights(oy - fy, phases)
+        vert = sum(wy[k] * src.rows(fy + k - 1) for k in range(4))
+        row = []
+        for ox in _offsets(s, jx):
+            fx = math.floor(ox)
+            wx = _scalar_weights(ox - fx, phases)
+            x0 = _PAD + fx - 1
+            out = sum(wx[i] * vert[:, :, x0 + i:x0 + i + src.w] for i in range(4))
+            if dering:
+                taps = [src.at(fy + j, fx + i) for j in (0, 1) for i in (0, 1)]
+                lo = torch.minimum(torch.minimum(taps[0], taps[1]), torch.minimum(taps[2], taps[3]))
+                hi = torch.maximum(torch.maximum(taps[0], taps[1]), torch.maximum(taps[2], taps[3]))
+                out = torch.maximum(torch.minimum(out, hi), lo)
+            row.append(out)
+        planes.append(row)
+    return sanitize_values(_interleave(planes, s))
 
 
 def upsample_geometry(depth: torch.Tensor, mv: torch.Tensor | None, scale: int,
                       jitter=(0.0, 0.0), extra: dict | None = None):
     """Depth and vectors at HR: each HR pixel takes the nearest surface (smallest depth) of
-    the 2x2 LR samples around its centre, with that sample's vector scaled by s (never an
-    average across an edge). extra: other per-pixel fields (normals, albedo...) taken from
-    the same sample. Returns (depth (1, sH, sW), mv (2, sH, sW) or None, extra dict)."""
+    the 2x2 LR samples around its centre (edges clamped), with that sample's vector scaled
+    by s (never an average across an edge); a tie keeps the first of (top-left, top-right,
+    bottom-left, bottom-right). extra: other per-pixel fields (normals, albedo...) taken
+    from the same sample. Returns (depth (1, sH, sW), mv (2, sH, sW) or None, extra)."""
     depth = sanitize_depth(check_tensor(depth, "depth", 1, allow_batch=False))
     s = check_scale(scale)
-    h, w = depth.shape[-2:]
-    u, v = hr_positions(h, w, s, jitter, depth.device)
-    x0 = u.floor().long()
-    y0 = v.floor().long()
-    flat = depth.reshape(-1)
-    best_d = best_i = None
-    for dy in (0, 1):
-        yy = (y0 + dy).clamp(0, h - 1) * w
-        for dx in (0, 1):
-            i = yy + (x0 + dx).clamp(0, w - 1)
-            d = flat[i]
-            if best_d is None:
-                best_d, best_i = d, i
-            else:
-                take = d < best_d
-                best_d = torch.where(take, d, best_d)
-                best_i = torch.where(take, i, best_i)
-    H, W = h * s, w * s
-    out_d = best_d.reshape(1, H, W).contiguous()
-    out_mv = None
+    jx, jy = clean_jitter(jitter)
+    fields = {"depth": depth}
     if mv is not None:
-        m = sanitize_mv(mv).reshape(2, -1)
-        out_mv = (m[:, best_i.reshape(-1)] * float(s)).reshape(2, H, W)
-    out_extra = {}
+        fields["mv"] = sanitize_mv(mv) * float(s)
     for k, t in (extra or {}).items():
-        if t is None:
-            out_extra[k] = None
-            continue
-        ft = t.reshape(t.shape[0], -1)
-        out_extra[k] = ft[:, best_i.reshape(-1)].reshape(t.shape[0], H, W)
-    return out_d, out_mv, out_extra
+        if t is not None:
+            fields[k] = t
+    shifted = {k: _Shifted(t) for k, t in fields.items()}
+    planes = {k: [] for k in fields}
+    for oy in _offsets(s, jy):
+        fy = math.floor(oy)
+        rows = {k: [] for k in fields}
+        for ox in _offsets(s, jx):
+            fx = math.floor(ox)
+            best = {k: sh.at(fy, fx) for k, sh in shifted.items()}
+            for dy, dx in ((0, 1), (1, 0), (1, 1)):
+                d = shifted["depth"].at(fy + dy, fx + dx)
+                take = d < best["depth"]
+                for k, sh in shifted.items():
+                    best[k] = torch.where(take, sh.at(fy + dy, fx + dx), best[k])
+            for k in fields:
+                rows[k].append(best[k])
+        for k in fields:
+            planes[k].append(rows[k])
+    out = {k: _interleave(v, s) for k, v in planes.items()}
+    out_extra = {k: (out[k] if t is not None else None) for k, t in (extra or {}).items()}
+    return out["depth"], out.get("mv"), out_extra
 
 
 def _neighbourhood_box(color: torch.Tensor, gamma: float | None = None):
@@ -176,17 +244,57 @@ def _neighbourhood_box(color: torch.Tensor, gamma: float | None = None):
     return lo, hi
 
 
-def _nearest_lr(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
-    """Flat index of the LR sample nearest to each position, and its distance (LR px)."""
-    iu = u.round().clamp(0, w - 1)
-    iv = v.round().clamp(0, h - 1)
-    d = torch.sqrt((u - iu) ** 2 + (v - iv) ** 2)
-    return (iv * w + iu).long(), d
+def _box_at_nearest(color_lr: torch.Tensor, s: int, jitter, gamma: float | None = None):
+    """The colour box (min, max) of the 3x3 LR samples around the LR sample nearest to each
+    HR pixel centre (nearest: floor(u + 0.5), edges clamped): (3, sH, sW) x2."""
+    jx, jy = clean_jitter(jitter)
+    lo, hi = _neighbourhood_box(color_lr, gamma)
+    slo, shi = _Shifted(lo), _Shifted(hi)
+    plo, phi = [], []
+    for oy in _offsets(s, jy):
+        ny = math.floor(oy + 0.5)
+        plo.append([slo.at(ny, math.floor(ox + 0.5)) for ox in _offsets(s, jx)])
+        phi.append([shi.at(ny, math.floor(ox + 0.5)) for ox in _offsets(s, jx)])
+    return _interleave(plo, s), _interleave(phi, s)
 
 
-def _gather(img: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-    c = img.shape[0]
-    return img.reshape(c, -1)[:, idx.reshape(-1)].reshape((c,) + tuple(idx.shape))
+def _weighted_samples(color_lr: torch.Tensor, s: int, jitter, weight):
+    """sum_k w_k c_k over the 3x3 LR samples around the nearest one to each HR pixel
+    centre, with w_k = weight(d_k) (d_k: distance from the sample's jittered place to the
+    pixel centre, in LR pixels; samples outside the image count 0). Returns (the sum
+    (3, sH, sW), the sum of the weights (1, sH, sW), the number of samples with w > 0
+    (1, sH, sW))."""
+    jx, jy = clean_jitter(jitter)
+    h, w = color_lr.shape[-2:]
+    src = _Shifted(color_lr, "zeros")
+    inside = _Shifted(torch.ones((1, h, w), dtype=torch.float32, device=color_lr.device),
+                      "zeros")
+    acc, wsum, cnt = [], [], []
+    for oy in _offsets(s, jy):
+        ny = math.floor(oy + 0.5)
+        ra, rw, rc = [], [], []
+        for ox in _offsets(s, jx):
+            nx = math.floor(ox + 0.5)
+            a = torch.zeros((3, h, w), dtype=torch.float32, device=color_lr.device)
+            ws = torch.zeros((1, h, w), dtype=torch.float32, device=color_lr.device)
+            n = torch.zeros((1, h, w), dtype=torch.float32, device=color_lr.device)
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    d = math.hypot(ox - (nx + dx), oy - (ny + dy))
+                    wt = float(weight(d))
+                    if wt <= 0.0:
+                        continue
+                    m = inside.at(ny + dy, nx + dx)
+                    a += wt * src.at(ny + dy, nx + dx)
+                    ws += wt * m
+                    n += m
+            ra.append(a)
+            rw.append(ws)
+            rc.append(n)
+        acc.append(ra)
+        wsum.append(rw)
+        cnt.append(rc)
+    return _interleave(acc, s), _interleave(wsum, s), _interleave(cnt, s)
 
 
 def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=True):
@@ -220,26 +328,14 @@ def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=
     return hc, inside & ~covered
 
 
-def _gaussian_samples(color_lr: torch.Tensor, u: torch.Tensor, v: torch.Tensor, scale: int,
-                      sigma: float):
-    """The 3x3 LR samples around each HR pixel, weighted exp(-sigma d^2) (d: distance from
-    the sample's jittered place to the pixel centre, in HR pixels): (weighted mean (3, H, W),
+def _gaussian_samples(color_lr: torch.Tensor, scale: int, jitter, sigma: float):
+    """The 3x3 LR samples around each HR pixel weighted exp(-sigma d^2) (d from the
+    sample's jittered place to the pixel centre, in HR pixels): (weighted mean (3, H, W),
     sum of the weights (H, W))."""
-    h, w = color_lr.shape[-2:]
-    iu, iv = u.round(), v.round()
-    acc = torch.zeros((3,) + tuple(u.shape), dtype=torch.float32, device=color_lr.device)
-    wsum = torch.zeros(tuple(u.shape), dtype=torch.float32, device=color_lr.device)
-    flat = color_lr.reshape(3, -1)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            sx, sy = iu + dx, iv + dy
-            inb = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
-            d2 = ((u - sx) ** 2 + (v - sy) ** 2) * float(scale * scale)
-            wt = torch.where(inb, torch.exp(-sigma * d2), torch.zeros_like(d2))
-            idx = (sy.clamp(0, h - 1) * w + sx.clamp(0, w - 1)).long().reshape(-1)
-            acc += flat[:, idx].reshape(acc.shape) * wt
-            wsum += wt
-    return acc / wsum.clamp_min(1e-12)[None], wsum
+    s = float(scale)
+    acc, wsum, _ = _weighted_samples(color_lr, scale, jitter,
+                                     lambda d: math.exp(-sigma * (d * s) ** 2))
+    return acc / wsum.clamp_min(1e-12), wsum[0]
 
 
 def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, scale: int,
@@ -275,8 +371,7 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
     H, W = h * s, w * s
     if hist_color is None or hist_depth is None or hist_weight is None:
         return spatial, torch.ones((H, W), dtype=torch.float32, device=color_lr.device)
-    u, v = hr_positions(h, w, s, jitter, color_lr.device)
-    cur, wcur = _gaussian_samples(color_lr, u, v, s, sigma)
+    cur, wcur = _gaussian_samples(color_lr, s, jitter, sigma)
     mv = sanitize_mv(mv_hr)
     hc, ok = _history(hist_color, hist_depth, depth_hr, mv, t_d, None,
                       cubic=history_filter == "catmull-rom")
@@ -286,18 +381,16 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
     py = (gy + mv[1]).round().clamp(0, H - 1).long()
     hw = hist_weight.reshape(-1)[(py * W + px).reshape(-1)].reshape(H, W)
     hw = torch.where(ok, torch.nan_to_num(hw, nan=0.0).clamp_min(0.0), torch.zeros_like(hw))
-    idx, _ = _nearest_lr(u, v, h, w)
-    lo, hi = _neighbourhood_box(color_lr, gamma)
-    hcc = torch.maximum(torch.minimum(hc, _gather(hi, idx)), _gather(lo, idx))
+    lo, hi = _box_at_nearest(color_lr, s, jitter, gamma)
+    hcc = torch.maximum(torch.minimum(hc, hi), lo)
     if reactive is not None:
         from fgcli.ops.blend import brightness_difference
 
         # the history's distance to the current estimate, against the spread of the
         # samples around the pixel: aliasing moves the estimate within the spread, a
         # change of shading (animated texture, reflection) moves it out of it
-        lo_g, hi_g = _gather(lo, idx), _gather(hi, idx)
         diff = brightness_difference(hc.clamp(0, BIG), cur.clamp(0, BIG))[0]
-        spread = brightness_difference(hi_g.clamp(0, BIG), lo_g.clamp(0, BIG))[0]
+        spread = brightness_difference(hi.clamp(0, BIG), lo.clamp(0, BIG))[0]
         hw = hw * (1.0 - (diff - spread * reactive).clamp_min(0.0) / 0.1).clamp(0.0, 1.0)
     hc = hcc
     out = (hc * hw + cur * wcur) / (hw + wcur).clamp_min(1e-12)
@@ -331,29 +424,12 @@ def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tens
     spatial = upscale(color_lr, s, jitter, phases=phases)
     if hist_color is None or hist_depth is None:
         return spatial
-    u, v = hr_positions(h, w, s, jitter, color_lr.device)
-    iu, iv = u.round(), v.round()
-    acc = torch.zeros((3,) + tuple(u.shape), dtype=torch.float32, device=color_lr.device)
-    wsum = torch.zeros(tuple(u.shape), dtype=torch.float32, device=color_lr.device)
-    n = torch.zeros_like(wsum)
-    flat = color_lr.reshape(3, -1)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            sx, sy = iu + dx, iv + dy
-            inb = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
-            d = torch.sqrt((u - sx) ** 2 + (v - sy) ** 2)
-            use = inb & (d <= 1.0)
-            wt = torch.where(use, 1.0 - b * d, torch.zeros_like(d))
-            idx = (sy.clamp(0, h - 1) * w + sx.clamp(0, w - 1)).long().reshape(-1)
-            acc += flat[:, idx].reshape(acc.shape) * wt
-            wsum += wt
-            n += use.float()
+    acc, wsum, n = _weighted_samples(color_lr, s, jitter,
+                                     lambda d: 1.0 - b * d if d <= 1.0 else 0.0)
     cur = acc / (wsum if normalize else n).clamp_min(1e-6)
-    cur = torch.where((n > 0)[None], cur, spatial)
+    cur = torch.where(n > 0, cur, spatial)
     hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
-    idx, _ = _nearest_lr(u, v, h, w)
-    lo, hi = _neighbourhood_box(color_lr)
-    lo, hi = _gather(lo, idx), _gather(hi, idx)
+    lo, hi = _box_at_nearest(color_lr, s, jitter)
     changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
     hc = torch.where(changed[None], torch.maximum(torch.minimum(hc, hi), lo), hc)
     out = a * cur + (1.0 - a) * hc
