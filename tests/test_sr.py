@@ -247,8 +247,10 @@ def test_hard_cases_stay_finite(size):
             t, wgt = S.taau(color, d, m, 2, j, hist, None if hist is None else d,
                             None if hist is None else torch.ones(2 * h, 2 * w))
             assert torch.isfinite(t).all() and torch.isfinite(wgt).all()
-            mo = S.mobfgsr_sr(color, d, m, 2, j, hist, None if hist is None else d)
-            assert torch.isfinite(mo).all()
+            for reactive in (None, 0.25):
+                mo = S.mobfgsr_sr(color, d, m, 2, j, hist, None if hist is None else d,
+                                  reactive=reactive)
+                assert torch.isfinite(mo).all()
 
 
 # ------------------------------------------------------------------------------ runs

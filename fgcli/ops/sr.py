@@ -404,7 +404,7 @@ def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tens
                scale: int, jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
                hist_depth: torch.Tensor | None = None, a: float = SR_A, b: float = SR_B,
                t_d: float = 0.02, t_b: float = 0.13, phases: int = LUT_PHASES,
-               normalize: bool = True):
+               normalize: bool = True, reactive: float | None = None):
     """Mob-FGSR super resolution of one rendered frame (paper Sec. 3.5, Eq. 2).
 
     The HR history is warped by the vectors with the Catmull-Rom LUT (``phases``
@@ -431,6 +431,11 @@ def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tens
     hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
     lo, hi = _box_at_nearest(color_lr, s, jitter)
     changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
+    keep = 1.0 - a
+    if reactive is not None:  # fgen: as taau's reactive history drop
+        diff = brightness_difference(hc.clamp(0, BIG), cur.clamp(0, BIG))[0]
+        spread = brightness_difference(hi.clamp(0, BIG), lo.clamp(0, BIG))[0]
+        keep = keep * (1.0 - (diff - spread * reactive).clamp_min(0.0) / 0.1).clamp(0.0, 1.0)
     hc = torch.where(changed[None], torch.maximum(torch.minimum(hc, hi), lo), hc)
-    out = a * cur + (1.0 - a) * hc
+    out = (a * cur + keep * hc) / (a + keep)
     return sanitize_values(torch.where(ok[None], out, spatial))

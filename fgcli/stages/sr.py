@@ -103,11 +103,17 @@ class MobFGSRSR(_Recurrent):
                Option("phases", "int", 32, "sub-pixel phases of the Catmull-Rom LUT",
                       range=(1, 4096)),
                Option("normalize", "bool", True, "divide Eq. 2's sum by the sum of its "
-                      "weights (false: by the sample count n, as printed in the paper)"))
+                      "weights (false: by the sample count n, as printed in the paper)"),
+               Option("reactive", "float", 0.0, "fgen extension, off by default: drop the "
+                      "history where it differs from the current samples by more than this "
+                      "x their spread, as taau does (0.25: better on held-out random scenes "
+                      "with animated shading, worse on still and orbiting views; "
+                      "docs/results.md)", range=(0.0, 100.0)))
 
     def step(self, ctx, st):
         from fgcli.ops.sr import mobfgsr_sr
 
         return mobfgsr_sr(ctx["color1"], ctx["depth_hr"], ctx["mv_hr"], ctx["scale"],
                           ctx["jitter1"], st.get("color"), st.get("depth"), a=self.a, b=self.b, t_d=self.t_d,
-                          t_b=self.t_b, phases=self.phases, normalize=self.normalize)
+                          t_b=self.t_b, phases=self.phases, normalize=self.normalize,
+                          reactive=self.reactive or None)
