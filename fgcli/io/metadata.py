@@ -64,10 +64,11 @@ def _rate(header: dict):
     return r if r and r > 0 and math.isfinite(r) else None
 
 
-def time_on(points: list[tuple[float, dict]], key: str, x: float):
+def time_on(points: list[tuple[float, dict]], key: str, x: float, step: float | None = None):
     """The value of header `key` at input frame number x, linear through the sources
-    (frame number, header) that carry it; None when none does (or one does, and its rate
-    is unknown for a time in seconds)."""
+    (frame number, header) that carry it. One source: seconds advance by its frame rate,
+    fgen:time by its vectors' span (fgen:time - fgen:mv_time per input step `step`). None
+    when neither is known."""
     pts = [(float(n), _num(h.get(key))) for n, h in points if h is not None]
     pts = [(n, v) for n, v in pts if v is not None and math.isfinite(v)]
     if len({n for n, _ in pts}) >= 2:
@@ -77,9 +78,13 @@ def time_on(points: list[tuple[float, dict]], key: str, x: float):
         n0, v0 = pts[0]
         if x == n0:
             return v0
-        rate = _rate(points[-1][1] or {})
+        h = next(h for n, h in points if h is not None and float(n) == n0)
+        rate = _rate(h)
         if key == "fgen:time_seconds" and rate:
             return v0 + (x - n0) / rate
+        mv = _num(h.get("fgen:mv_time"))
+        if key == "fgen:time" and mv is not None and step and mv != v0:
+            return v0 + (x - n0) * (v0 - mv) / step
     return None
 
 
@@ -93,8 +98,8 @@ def _joined(values: list):
 
 
 def generated_header(sources: list[tuple[float, dict, dict]], x: float, number: int,
-                     numbering: str, scale: int, prev_x: float | None = None
-                     ) -> tuple[dict, dict]:
+                     numbering: str, scale: int, prev_x: float | None = None,
+                     step: float | None = None) -> tuple[dict, dict]:
     """(header, header_types) of a generated frame at input frame number x, written as
     output frame `number`. sources: (frame number, header, header types) of the input
     frames it was made from, oldest first. numbering: 'input', 'scaled' or 'sequential';
@@ -124,23 +129,23 @@ def generated_header(sources: list[tuple[float, dict, dict]], x: float, number: 
             out[k] = like_h.get(k, vals[0])
             if k in like_t:
                 types[k] = like_t[k]
-    out.update(time_attributes(heads, x, number, numbering, scale, prev_x))
+    out.update(time_attributes(heads, x, number, numbering, scale, prev_x, step))
     return out, types
 
 
 def time_attributes(heads: list[tuple[float, dict]], x: float, number: int, numbering: str,
-                    scale: int, prev_x: float | None = None) -> dict:
+                    scale: int, prev_x: float | None = None, step: float | None = None) -> dict:
     """fgen:frame, fgen:input_frame, fgen:numbering, fgen:time(_seconds), fgen:mv_time and
     the frame rate of an output frame at input frame number x (see the module doc)."""
     d = {"fgen:frame": int(number), "fgen:input_frame": float(x),
          "fgen:numbering": numbering_text(numbering, scale)}
-    t = time_on(heads, "fgen:time", x)
+    t = time_on(heads, "fgen:time", x, step)
     d["fgen:time"] = float(x) if t is None else t
     ts = time_on(heads, "fgen:time_seconds", x)
     if ts is not None:
         d["fgen:time_seconds"] = ts
     if prev_x is not None:
-        mt = time_on(heads, "fgen:time", prev_x)
+        mt = time_on(heads, "fgen:time", prev_x, step)
         if mt is not None or any("fgen:mv_time" in h for _, h in heads):
             d["fgen:mv_time"] = float(prev_x) if mt is None else mt
     last = heads[-1][1] if heads else {}
@@ -317,7 +322,7 @@ def finish_generated(gen, ctx: dict, f0, f1, a, b, t: float, prev_t: float, mode
         x, px = b + t * step, b + prev_t * step
     sources = ([] if f0 is None or a is None else [(a, f0.header, f0.header_types)]) + \
         [(b, f1.header, f1.header_types)]
-    header, types = generated_header(sources, x, gen.number, numbering, scale, px)
+    header, types = generated_header(sources, x, gen.number, numbering, scale, px, step)
     c0 = None if f0 is None else f0.camera
     if mode == "interp":
         cam = interpolate_camera(c0, f1.camera, t)
