@@ -186,9 +186,27 @@ def eval_source(in_dir: str, gt_dir: str | None, factor: int | None, in_kw: dict
         else:
             factor = 2
     if gt_dir:
-        rin = open_input(in_dir, **in_kw)
+        rin = open_input(in_dir, **input_selection(in_dir, in_kw))
         return ev.GTSource(rin, open_input(gt_dir, **gt_selection(rin, gt_dir, in_kw)))
     return ev.HeldOutSource(open_input(in_dir, **in_kw), factor)
+
+
+def input_selection(in_dir: str, in_kw: dict) -> dict:
+    """The input options for the input folder of an input/gt pair: --frames keeps the
+    input frames it names that are on disk (1-9 on input 1, 3, .., 9: all five)."""
+    if not in_kw.get("frames"):
+        return in_kw
+    from fgcli.io.options import open_input
+    from fgcli.io.sequence import parse_frames
+
+    want = set(parse_frames(in_kw["frames"]))
+    every = open_input(in_dir, **{k: v for k, v in in_kw.items() if k != "frames"}).numbers
+    keep = [n for n in every if n in want]
+    if len(keep) < 2:
+        raise InputError(f"--frames {in_kw['frames']} selects {len(keep)} input frame(s) "
+                         f"(input frames: {every[0]}..{every[-1]}); evaluation needs two",
+                         file=in_dir)
+    return {**in_kw, "frames": ",".join(str(n) for n in keep)}
 
 
 def gt_selection(reader_in, gt_dir: str, in_kw: dict) -> dict:
