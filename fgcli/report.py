@@ -403,24 +403,25 @@ def _html(result, page, figs, out_dir) -> str:
         z = page["zoom"]
         parts.append(f"<h2>Same region, every pipeline</h2><p class=meta>Frame "
                      f"{page['frame']} (the lowest mean PSNR over the pipelines), region "
-                     f"x={x} y={y} {w}x{h}, outlined below. Rows: the crop at 1:1, zoomed "
-                     f"x{z} (nearest), and |error| zoomed x{z} on one shared scale.</p>")
+                     f"x={x} y={y} {w}x{h}, outlined below. One row per image: the crop at "
+                     f"1:1, zoomed x{z} (nearest), and |error| zoomed x{z} on one shared "
+                     f"scale (colour bar below).</p>")
         parts.append(f"<figure>{_img(out_dir, 'crops/frame.png', 'the frame', 'px')}"
                      f"<figcaption>ground truth, frame {page['frame']}, 1:1</figcaption>"
                      f"</figure>")
-        ncol = len(page["cells"])
-        cells = []
+        cells = ["<div class=lab>image</div><div class=lab>1:1</div>"
+                 f"<div class=lab>x{z}</div><div class=lab>|error| x{z}</div>"]
         for c in page["cells"]:
             lab = html.escape(c["label"]) + ("" if c["psnr"] is None
-                                             else f" &middot; {c['psnr']:.2f} dB")
+                                             else f"<br>{c['psnr']:.2f} dB")
             err = (_img(out_dir, c["error"], f"{c['label']} error", "px") if "error" in c
-                   else f'<div style="width:{w * z}px;height:{h * z}px"></div>')
-            cells.append(f"<div class=cell><div class=lab>{lab}</div>"
-                         f"{_img(out_dir, c['crop'], c['label'] + ' 1:1', 'px')}"
-                         f"{_img(out_dir, c['zoomed'], c['label'] + ' zoomed', 'px')}"
-                         f"{err}</div>")
-        parts.append(f'<div class=crops style="grid-template-columns:repeat({ncol},'
-                     f'max-content)">' + "".join(cells) + "</div>")
+                   else "<div class=meta>(reference)</div>")
+            cells.append(f"<div class='cell lab'>{lab}</div>"
+                         f"<div>{_img(out_dir, c['crop'], c['label'] + ' 1:1', 'px')}</div>"
+                         f"<div>{_img(out_dir, c['zoomed'], c['label'] + ' zoomed', 'px')}"
+                         f"</div><div>{err}</div>")
+        parts.append('<div class=crops style="grid-template-columns:10em repeat(3,'
+                     'max-content)">' + "".join(cells) + "</div>")
         parts.append(f"<figure>{_img(out_dir, 'colorbar.png', 'colour bar')}<figcaption>"
                      f"error scale 0-{page['vmax']:g}, shared by every pipeline</figcaption>"
                      f"</figure>")
