@@ -59,7 +59,7 @@ def common(f):
                      help="No progress bar (or, when stderr is not a terminal, no periodic "
                           "progress line; FGEN_PROGRESS_SECONDS sets its period, default "
                           "30).")(f)
-    f = click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
+    f = click.option("--json", "json_out", type=click.Path(allow_dash=True),
                      default=None, metavar="FILE|-",
                      help="Also write the run summary (timings, skips) to this JSON file "
                           "('-': stdout).")(f)
@@ -125,7 +125,7 @@ def check_executor(executor, scheduler, workers, chunk=None):
 def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,
         count, in_kw, out_kw, chunk=None, executor="local", scheduler=None, workers=None,
         scene_cuts="auto", cut_threshold=None):
-    from fgcli.commands._help import apply_threads, write_json
+    from fgcli.commands._help import apply_threads, check_json_path, write_json
 
     from fgcli import pipeline as pl
     from fgcli.batch import RunTask, expand_inputs, run_local
@@ -134,6 +134,7 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
     from fgcli.kernels import resolve
 
     check_executor(executor, scheduler, workers, chunk)
+    check_json_path(json_out)
     # --backend (backend_option) is read here, not passed by each command
     params = click.get_current_context().params
     backend = params.get("backend") or "auto"
@@ -152,6 +153,10 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
                      cut_threshold=cut_threshold, backend=backend,
                      numbering=params.get("numbering") or "scaled")
              for name, folder, pattern, od in seqs]
+    if params.get("numbering") == "input":  # refused before any folder is made
+        from fgcli.commands._plan import check_plans
+
+        check_plans(tasks)
     if params.get("dry_run"):
         from fgcli.commands._plan import print_plans
 

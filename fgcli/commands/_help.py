@@ -46,6 +46,16 @@ class SectionedCommand(click.Command):
                 formatter.write_dl([rv for _, rv in rows])
 
 
+def check_json_path(path: str | None) -> None:
+    """Fail before any work when --json names a folder (an output problem, exit 3)."""
+    import os
+
+    from fgcli.errors import OutputError
+
+    if path and path != "-" and os.path.isdir(path):
+        raise OutputError("--json names a folder, not a file", file=path)
+
+
 def write_json(path: str | None, data) -> None:
     """Write `data` as JSON to `path`; '-' = stdout."""
     if not path:

@@ -50,8 +50,12 @@ def print_plans(tasks, executor: str = "local", workers: int | None = None) -> N
         except (AttributeError, OSError):  # pragma: no cover - non-Linux
             cores = os.cpu_count() or 1
         tasks = split_chunks(tasks, workers or cores)
+    from fgcli.errors import OutputError
+
     readers = {}
     for t in tasks:
+        if os.path.exists(t.out_dir) and not os.path.isdir(t.out_dir):
+            raise OutputError("output path exists and is not a folder", file=t.out_dir)
         key = (t.folder, t.pattern)
         if key not in readers:
             from fgcli import pipeline as pl
@@ -62,3 +66,15 @@ def print_plans(tasks, executor: str = "local", workers: int | None = None) -> N
                                       **t.in_kw)
         for line in plan_lines(t, readers[key]):
             click.echo(line)
+
+
+def check_plans(tasks) -> None:
+    """Plan every task from headers only (before any output folder is made), so that a
+    plan that cannot be (--numbering input between input frames) fails first."""
+    from fgcli import pipeline as pl
+    from fgcli.batch import plan_task
+    from fgcli.io.options import open_input
+
+    for t in tasks:
+        p = pl.load(t.pipeline)
+        plan_task(t, open_input(t.folder, fields=set(p.requires), pattern=t.pattern, **t.in_kw))

@@ -13,7 +13,7 @@ _CHECK = ("alpha", "depth", "mv", "normal", "albedo", "roughness")
                     "renders (or a TOML-described layout) to the fgen layout, or back. "
                     "Outputs keep the input's file names.")
 @click.argument("input_dir", type=click.Path(file_okay=False))
-@click.argument("output_dir", type=click.Path(file_okay=False))
+@click.argument("output_dir", type=click.Path())
 @input_options
 @output_options
 def cmd(input_dir, output_dir, **kw):

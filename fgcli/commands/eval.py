@@ -19,7 +19,7 @@ from fgcli.io.options import input_options
 @click.option("--mode", type=click.Choice(["interp", "extrap"]), default="interp", show_default=True,
               help="interp: score frames between input frames; extrap: frames after each "
                    "input frame, made from it and its history only.")
-@click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
+@click.option("--json", "json_out", type=click.Path(allow_dash=True),
               default=None, metavar="FILE|-",
               help="Write the scores as JSON ('-': stdout; the table then goes to stderr).")
 @click.option("--report", "report_dir", type=click.Path(), default=None, metavar="DIR",
@@ -74,10 +74,11 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir
 
     from fgcli.kernels import resolve
 
-    from fgcli.commands._help import apply_threads, write_json
+    from fgcli.commands._help import apply_threads, check_json_path, write_json
     from fgcli.report import check_report_dir, merge_repeats
 
     check_executor(executor, scheduler, workers)
+    check_json_path(json_out)
     apply_threads(threads)
     resolve(backend, device)  # fail early
     if report_dir:
