@@ -162,24 +162,43 @@ def test_exit_codes_as_the_readme_table_says(pair, tmp_path, capsys, tiny_scene)
         write_frame(str(gap / f"g.{t:04d}.exr"), _frame(t))
     existing = tmp_path / "exists"
     fgen(capsys, "interpolate", inp, existing, *RUN)
+    from fgcli.io import exr
+
+    ychan = tmp_path / "ychan"
+    ychan.mkdir()
+    exr.write_exr(str(ychan / "y.0001.exr"), {"Y": render_scene(0)["color"][0]})
+    sizes = tmp_path / "sizes"
+    sizes.mkdir()
+    write_frame(str(sizes / "z.0001.exr"), _frame(0))
+    d = render_scene(1, 20, 30)
+    write_frame(str(sizes / "z.0002.exr"), Frame(number=2, color=torch.from_numpy(d["color"])))
+    # each clause of the README's table (a phrase of its row) and a command that hits it
     cases = {
-        0: [("interpolate", inp, tmp_path / "ok", *RUN), ("info", inp), ("pipelines",)],
-        1: [("info", bad), ("info", tmp_path / "empty"), ("info", gap),
-            ("interpolate", tmp_path / "afile", tmp_path / "o1", *RUN)],
-        2: [("interpolate", inp, tmp_path / "o2", "--pipeline", "nope"),
-            ("interpolate", inp, tmp_path / "o2", "--bogus"),
-            ("interpolate", inp, tmp_path / "o2", "--set", "splat.x=1"),
-            ("describe", "no-such-stage")],
-        3: [("interpolate", inp, inp, *RUN), ("interpolate", inp, existing, *RUN),
-            ("interpolate", inp, tmp_path / "afile", *RUN),
-            ("interpolate", inp, tmp_path / "afile" / "sub", *RUN),
-            ("convert", inp, tmp_path / "afile"),
-            ("eval", pair, "--pipeline", "repeat", "--report", tmp_path / "afile"),
-            ("interpolate", inp, tmp_path / "o3", "--json", tmp_path, *RUN)],
+        0: [("success", ("interpolate", inp, tmp_path / "ok", *RUN)),
+            ("success", ("info", inp)), ("success", ("pipelines",))],
+        1: [("non-EXR file", ("info", bad)), ("empty folder", ("info", tmp_path / "empty")),
+            ("gaps", ("info", gap)), ("missing channels", ("info", ychan)),
+            ("frames of different sizes", ("info", sizes)),
+            ("not a folder", ("interpolate", tmp_path / "afile", tmp_path / "o1", *RUN))],
+        2: [("unknown pipeline", ("interpolate", inp, tmp_path / "o2", "--pipeline", "nope")),
+            ("bad option", ("interpolate", inp, tmp_path / "o2", "--bogus")),
+            ("out of its range", ("interpolate", inp, tmp_path / "o2", "--factor", "0")),
+            ("--set", ("interpolate", inp, tmp_path / "o2", "--set", "splat.x=1")),
+            ("stage", ("describe", "no-such-stage")),
+            ("--numbering input", ("interpolate", inp, tmp_path / "o2", "--factor", "4",
+                                   "--numbering", "input"))],
+        3: [("input folder", ("interpolate", inp, inp, *RUN)),
+            ("refusing to overwrite", ("interpolate", inp, existing, *RUN)),
+            ("is a file", ("interpolate", inp, tmp_path / "afile", *RUN)),
+            ("unwritable folder", ("interpolate", inp, tmp_path / "afile" / "sub", *RUN)),
+            ("is a file", ("convert", inp, tmp_path / "afile")),
+            ("--report", ("eval", pair, "--pipeline", "repeat", "--report",
+                          tmp_path / "afile")),
+            ("--json", ("interpolate", inp, tmp_path / "o3", "--json", tmp_path, *RUN))],
     }
     for code, runs in cases.items():
-        assert code in table
-        for args in runs:
+        for clause, args in runs:
+            assert clause in table[code], (code, clause)
             got, _, err = fgen(capsys, *args)
             assert got == code, (args, err)
             if code:

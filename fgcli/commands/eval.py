@@ -6,9 +6,8 @@ from fgcli.io.options import input_options
 
 
 @click.command("eval", cls=SectionedCommand)
-@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(file_okay=False),
-                metavar="IN_DIR...")
-@click.option("--gt", "gt_dir", type=click.Path(file_okay=False), default=None,
+@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(), metavar="IN_DIR...")
+@click.option("--gt", "gt_dir", type=click.Path(), default=None, metavar="GT_DIR",
               help="Ground-truth frames on the same frame-number timeline as IN.")
 @click.option("--factor", type=click.IntRange(min=2), default=None, metavar="N",
               help="IN is full-rate: keep every N-th frame as input, score the rest.")

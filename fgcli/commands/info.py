@@ -170,7 +170,7 @@ def _text(d: dict) -> str:
 
 @click.command(help="Describe a sequence: layout, resolution, frames, channels with types, "
                     "cameras, derived vectors; --scan counts NaN/Inf per channel.")
-@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("folder", type=click.Path())
 @input_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--scan", "do_scan", is_flag=True,
