@@ -116,10 +116,14 @@ def _display(x):
 
 
 def _colors(names):
+    """A distinct colour per name, the same for a name in every figure."""
     import matplotlib
 
-    cmap = matplotlib.colormaps["tab10"] if len(names) <= 10 else matplotlib.colormaps["tab20"]
-    return {n: cmap(i % cmap.N) for i, n in enumerate(names)}
+    if len(names) <= 10:
+        pal = list(matplotlib.colormaps["tab10"].colors)
+    else:  # up to 60 distinct ones
+        pal = [c for m in ("tab20", "tab20b", "tab20c") for c in matplotlib.colormaps[m].colors]
+    return {n: pal[i % len(pal)] for i, n in enumerate(names)}
 
 
 def _safe(name: str) -> str:
