@@ -312,8 +312,13 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     compare = None  # the frame every pipeline found hardest, all outputs (--report)
     cuts: list = []
     scored_px, total_px = 0, 0
-    bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
-               disable=None if progress else True, leave=False)
+    from fgcli.progress import LogProgress, wants_log
+
+    if progress and wants_log():  # stderr is a log file: one line now and then
+        bar = LogProgress(len(tasks) * len(built), f"eval {mode}")
+    else:
+        bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
+                   disable=None if progress else True, leave=False)
     with torch.inference_mode():
         for task in tasks:
             gt = src.gt(task.target)

@@ -529,8 +529,6 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     from fgcli.io.metadata import copy_header, finish_generated
 
     numbering = plan.get("numbering", "scaled")
-    if plan.get("note"):
-        print(f"fgen: {plan['note']}", file=sys.stderr)
     state = RunState()
     sync = device_sync(device)
     pinfo = describe(pipeline)

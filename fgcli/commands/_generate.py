@@ -194,6 +194,8 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
             click.echo(f"scene cuts (nearest frame repeated, no blending) at output frames "
                        f"{', '.join(str(c) for c in sc['cuts'])}; scores in fgen-run.json",
                        err=True)
+        if summary.get("numbering_note") and summary.get("written"):
+            click.echo(f"note: {summary['numbering_note']}", err=True)
         if summary.get("stale_temp_removed"):
             click.echo(f"removed {summary['stale_temp_removed']} temporary files left by a "
                        "killed run", err=True)

@@ -40,8 +40,9 @@ class SectionedCommand(click.Command):
             rows = groups.get(sec)
             if not rows:
                 continue
-            if sec == "Pipeline":  # --pipeline leads
-                rows.sort(key=lambda r: r[0] not in ("pipeline", "pipelines"))
+            if sec == "Pipeline":  # --pipeline leads, then its overrides
+                lead = {"pipeline": 0, "pipelines": 0, "sets": 1, "variants": 1}
+                rows.sort(key=lambda r: lead.get(r[0], 2))
             with formatter.section(f"{sec} options"):
                 formatter.write_dl([rv for _, rv in rows])
 
