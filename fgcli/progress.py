@@ -31,6 +31,7 @@ class LogProgress:
         self.every = interval() if every is None else every
         self.t0 = self.last = time.monotonic()
         self.closed = False
+        self.shown = -1  # frames done at the last line
 
     def line(self) -> str:
         el = time.monotonic() - self.t0
@@ -44,6 +45,7 @@ class LogProgress:
     def _emit(self) -> None:
         print(self.line(), file=self.stream, flush=True)
         self.last = time.monotonic()
+        self.shown = self.n
 
     def update(self, k: int = 1) -> None:
         self.n += k
@@ -51,6 +53,6 @@ class LogProgress:
             self._emit()
 
     def close(self) -> None:
-        if not self.closed and self.total:
+        if not self.closed and self.total and self.shown != self.n:
             self._emit()
         self.closed = True
