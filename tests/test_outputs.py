@@ -117,3 +117,43 @@ def test_info_shows_fgen_metadata(orbit, capsys):
     assert len(meta["world_to_camera"]) == 4
     code, out, _ = fgen(capsys, "info", orbit / "gt")
     assert "fgen:synth_role" in out and "fgen:time" in out
+
+
+def test_camera_interpolation_is_exact_on_an_orbit_and_hits_its_ends():
+    from fgcli.frame import Camera
+    from fgcli.io.metadata import interpolate_camera
+    from fgcli.ops.gffe import look_at
+
+    proj0, proj1 = np.diag([1.2, 2.0, -1.0, 0.0]), np.diag([1.4, 2.2, -1.0, 0.0])
+
+    def cam(deg, proj):
+        a = np.radians(deg)
+        pos = np.array([5 * np.sin(a), 1.5, 5 * np.cos(a)])
+        return Camera(look_at(pos, -pos + [0, 0.5, 0], [0, 1, 0]), proj)
+
+    c0, c1 = cam(10, proj0), cam(50, proj1)
+    for t, ref in ((0.0, c0), (1.0, c1)):
+        c = interpolate_camera(c0, c1, t)
+        np.testing.assert_allclose(c.world_to_camera, ref.world_to_camera, atol=1e-12)
+        np.testing.assert_allclose(c.projection, ref.projection, atol=1e-12)
+    mid = interpolate_camera(c0, c1, 0.25)
+    np.testing.assert_allclose(mid.world_to_camera, cam(20, proj0).world_to_camera, atol=1e-9)
+    np.testing.assert_allclose(mid.projection, 0.75 * proj0 + 0.25 * proj1)
+    assert interpolate_camera(None, c1, 0.5) is None
+
+
+def test_time_from_two_sources_one_source_or_none():
+    from fgcli.io.metadata import time_attributes
+
+    h0 = {"fgen:time": 0.0, "fgen:time_seconds": 0.0, "fgen:frame_rate": 60.0}
+    h1 = {"fgen:time": 1.0, "fgen:time_seconds": 1 / 30, "fgen:frame_rate": 60.0}
+    d = time_attributes([(0, h0), (2, h1)], 1.0, 1, "scaled", 1)
+    assert d["fgen:time"] == 0.5 and d["fgen:time_seconds"] == pytest.approx(1 / 60)
+    # extrapolated past the only source: seconds by the frame rate, time by the vectors' span
+    h1m = {**h1, "fgen:mv_time": 0.0}
+    d = time_attributes([(2, h1m)], 3.0, 3, "scaled", 1, step=2)
+    assert d["fgen:time"] == 1.5 and d["fgen:time_seconds"] == pytest.approx(1 / 30 + 1 / 60)
+    # no time in the sources: the place on the input timeline; a scaled rate
+    d = time_attributes([(0, {}), (1, {"fgen:frame_rate": 24.0})], 0.5, 1, "scaled", 2)
+    assert d["fgen:time"] == 0.5 and "fgen:time_seconds" not in d
+    assert d["fgen:frame_rate"] == 48.0 and d["fgen:input_frame"] == 0.5

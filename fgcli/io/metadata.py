@@ -271,6 +271,9 @@ def generated_alpha(mv, t: float, prev_t: float, mode: str, alpha0, alpha1):
         span = t if alpha1 is not None else t + 1.0
     if mv is None:
         return src.clone()
+    if tuple(src.shape[-2:]) != tuple(mv.shape[-2:]):  # a source at another resolution
+        src = torch.nn.functional.interpolate(src[None].float(), size=tuple(mv.shape[-2:]),
+                                              mode="bilinear", align_corners=False)[0]
     step = t - prev_t
     if step == 0:
         return src.clone()
