@@ -10,7 +10,7 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 
-from fgcli.errors import FgenError, UsageError
+from fgcli.errors import FgenError, InputError, UsageError
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,7 @@ class RunTask:
     cut_threshold: float | None = None
     backend: str = "auto"  # --backend: auto | torch | numba
     scale: int = 1  # --scale: output resolution / input resolution
+    numbering: str = "scaled"  # --numbering: scaled | input | sequential (fgcli.numbering)
 
     def label(self) -> str:
         c = f" chunk {self.chunk[0]}/{self.chunk[1]}" if self.chunk else ""
@@ -91,7 +92,7 @@ def open_task(task: RunTask):
 
     p = pl.load(task.pipeline)
     if task.sets:
-        p = p.with_overrides(list(task.sets), label=p.label)
+        p = p.with_overrides(list(task.sets), label=p.label, origin="--set")
     reader = open_input(task.folder, fields=set(p.requires), pattern=task.pattern,
                         gbuffer_frames=task.scale > 1, **task.in_kw)
     out = open_output(task.out_dir, reader, **task.out_kw)
@@ -101,12 +102,14 @@ def open_task(task: RunTask):
 def plan_task(task: RunTask, reader=None) -> dict:
     """The task's plan (fgcli.runner.plan_outputs), reading headers only (none when the
     sequence's reader is given)."""
+    from fgcli.numbering import renumber
     from fgcli.runner import plan_outputs
 
     if reader is None:
         reader = open_task(task)[0]
-    return plan_outputs(reader.numbers, reader.step, task.mode, list(task.times), task.count,
-                        task.emit, task.chunk)
+    return renumber(plan_outputs(reader.numbers, reader.step, task.mode, list(task.times),
+                                 task.count, task.emit, task.chunk),
+                    task.numbering, task.mode, task.emit)
 
 
 def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
@@ -119,7 +122,7 @@ def execute(task: RunTask, progress: bool = False, on_frame=None) -> dict:
                            out_layout=out.layout, half=out.half, compression=out.compression,
                            command=task.command, chunk=task.chunk, on_frame=on_frame,
                            scene_cuts=task.scene_cuts, cut_threshold=task.cut_threshold,
-                           backend=task.backend, scale=task.scale)
+                           backend=task.backend, scale=task.scale, numbering=task.numbering)
     summary["task"] = task.label()
     return summary
 
@@ -203,8 +206,47 @@ def eval_source(in_dir: str, gt_dir: str | None, factor: int | None, in_kw: dict
         else:
             factor = 2
     if gt_dir:
-        return ev.GTSource(open_input(in_dir, **in_kw), open_input(gt_dir, **in_kw))
+        rin = open_input(in_dir, **input_selection(in_dir, in_kw))
+        return ev.GTSource(rin, open_input(gt_dir, **gt_selection(rin, gt_dir, in_kw)))
     return ev.HeldOutSource(open_input(in_dir, **in_kw), factor)
+
+
+def input_selection(in_dir: str, in_kw: dict) -> dict:
+    """The input options for the input folder of an input/gt pair: --frames keeps the
+    input frames it names that are on disk (1-9 on input 1, 3, .., 9: all five)."""
+    if not in_kw.get("frames"):
+        return in_kw
+    from fgcli.io.options import open_input
+    from fgcli.io.sequence import parse_frames
+
+    want = set(parse_frames(in_kw["frames"]))
+    every = open_input(in_dir, **{k: v for k, v in in_kw.items() if k != "frames"}).numbers
+    keep = [n for n in every if n in want]
+    if len(keep) < 2:
+        raise InputError(f"--frames {in_kw['frames']} selects {len(keep)} input frame(s) "
+                         f"(input frames: {every[0]}..{every[-1]}); evaluation needs two",
+                         file=in_dir)
+    return {**in_kw, "frames": ",".join(str(n) for n in keep)}
+
+
+def gt_selection(reader_in, gt_dir: str, in_kw: dict) -> dict:
+    """The input options for the ground-truth folder of an input/gt pair: --frames selects
+    input frames; the ground truth keeps the frames from the first selected input frame to
+    one input step past the last (the interpolation and extrapolation targets of that
+    selection)."""
+    if not in_kw.get("frames"):
+        return in_kw
+    from fgcli.io.options import open_input
+
+    kw = {k: v for k, v in in_kw.items() if k != "frames"}
+    nums = reader_in.numbers
+    lo, hi = nums[0], nums[-1] + (reader_in.step or 1)
+    every = open_input(gt_dir, **kw).numbers
+    keep = [n for n in every if lo <= n < hi]
+    if not keep:
+        raise InputError(f"no ground-truth frames between input frames {lo} and {hi} "
+                         f"(--frames {in_kw['frames']})", file=gt_dir)
+    return {**kw, "frames": ",".join(str(n) for n in keep)}
 
 
 def execute_eval(task: EvalTask, progress: bool = True, on_frame=None) -> dict:

@@ -65,6 +65,13 @@ def main(argv=None):
     debug = "--debug" in (argv if argv is not None else sys.argv[1:])
     try:
         cli.main(args=argv, prog_name="fgen", standalone_mode=False)
+    except click.UsageError as e:  # click's own (bad option or value): one line, as ours
+        if debug:
+            raise
+        where = e.ctx.command_path if e.ctx is not None else "fgen"
+        msg = " ".join(e.format_message().split())
+        click.echo(f"Error: {msg} (see '{where} --help')", err=True)
+        sys.exit(e.exit_code)
     except click.ClickException as e:
         if debug:
             raise

@@ -1,4 +1,4 @@
-"""`fgen eval`: the evaluation protocol of DESIGN.md section 4.
+"""`fgen eval`: the evaluation protocol (docs/evaluation.md).
 
 Input and ground truth share one frame-number timeline. Two sources:
 - with ground truth: IN is the rendered input (step >= 2, MVs spanning the input interval),
@@ -312,10 +312,16 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     tchange = {id(b[1]): TemporalChange(step_frames_of(src)) for b in built}
     holes: dict = {}  # pipeline -> [unfilled pixels, pixels] (gffe_hole_fill)
     worst: dict = {}
+    compare = None  # the frame every pipeline found hardest, all outputs (--report)
     cuts: list = []
     scored_px, total_px = 0, 0
-    bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
-               disable=None if progress else True, leave=False)
+    from fgcli.progress import LogProgress, wants_log
+
+    if progress and wants_log():  # stderr is a log file: one line now and then
+        bar = LogProgress(len(tasks) * len(built), f"eval {mode}")
+    else:
+        bar = tqdm(total=len(tasks) * len(built), desc=f"eval {mode}", unit="frame",
+                   disable=None if progress else True, leave=False)
     with torch.inference_mode():
         for task in tasks:
             gt = src.gt(task.target)
@@ -337,6 +343,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
             if cut_threshold is not None:
                 fctx["scene_cut_threshold"] = cut_threshold
             facts = frame_facts(fctx)  # once for all pipelines
+            outs_here: dict = {}  # this frame's output of every pipeline (--report)
             if "cut_check" in facts:
                 cuts.append({"frame": task.target, **facts["cut_check"]})
             for p, stages, tm, sc in built:
@@ -358,9 +365,14 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                         worst[p.label] = {"psnr": sc.psnr[-1], "frame": task.target,
                                           "out": ctx["color"].detach().cpu().clone(),
                                           "gt": gt.color.clone()}
+                    outs_here[p.label] = (ctx["color"].detach().cpu().clone(), sc.psnr[-1])
                 bar.update(1)
                 if on_frame is not None:
                     on_frame(1)
+            if keep_worst:
+                from fgcli.report import keep_hardest
+
+                compare = keep_hardest(compare, task.target, gt.color, outs_here)
     bar.close()
     res = {}
     for p, stages_, tm, sc in built:
@@ -386,7 +398,7 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
                        "what": ("the whole display window" if scored_px == total_px else
                                 "the bounding box of the data windows of the target and its "
                                 "input frames (padding outside carries no data)")},
-            "_worst": worst}
+            "_worst": worst, "_compare": compare}
 
 
 def markdown_table(result: dict) -> str:
@@ -403,6 +415,8 @@ def markdown_table(result: dict) -> str:
         for key, _, fmt in cols:
             v = r.get(key)
             vals.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
+        if r.get("ms_per_frame_spread"):  # --repeat N: min-max of the runs' medians
+            vals[-1] += " ({:.1f}-{:.1f})".format(*r["ms_per_frame_spread"])
         st = ", ".join(f"{k} {v:.1f}" for k, v in r["stages"].items())
         if r.get("skipped_stage_runs"):
             st += ("; " if st else "") + (f"{r['skipped_stage_runs']} stage runs skipped (not "

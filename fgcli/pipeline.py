@@ -78,46 +78,66 @@ class Pipeline:
     def label(self) -> str:
         return self.variant or self.name
 
-    def with_overrides(self, sets: list[str], label: str | None = None) -> "Pipeline":
-        """Apply `stage.option=value`, `option=value` (unique option) or `stage=off|on`."""
+    def with_overrides(self, sets: list[str], label: str | None = None,
+                       origin: str | None = None) -> "Pipeline":
+        """Apply `stage.option=value`, `option=value` (unique option) or `stage=off|on`.
+        origin: where the overrides come from ('--set', "variant 'X'"): errors then name
+        it and the override instead of the pipeline file."""
         import copy
 
         p = copy.deepcopy(self)
+        origin = origin or (f"variant '{label}'" if label and label != self.name else None)
         for s in sets:
-            if "=" not in s:
-                raise UsageError(f"bad override '{s}' (use stage.option=value)")
-            key, value = s.split("=", 1)
-            key, value = key.strip(), value.strip()
-            if "." in key:
-                sid, opt = key.split(".", 1)
-                targets = [st for st in p.stages if st.id == sid or st.use == sid]
-                if not targets:
-                    raise UsageError(f"pipeline '{p.name}' has no stage '{sid}' "
-                                     f"(stages: {', '.join(st.id for st in p.stages)})")
-                for st in targets:
-                    cls = get_stage(st.use)
-                    if opt not in {o.name for o in cls.options}:
-                        raise UsageError(f"stage '{sid}' has no option '{opt}' (options: "
-                                         f"{', '.join(o.name for o in cls.options) or 'none'})")
-                    st.opts[opt] = value
-                continue
-            stage_hits = [st for st in p.stages if st.id == key or st.use == key]
-            if stage_hits and value.lower() in ("off", "on", "false", "true", "0", "1"):
-                for st in stage_hits:
-                    st.enabled = value.lower() in ("on", "true", "1")
-                continue
-            hits = [st for st in p.stages if key in {o.name for o in get_stage(st.use).options}]
-            owners = {st.id for st in hits}
-            if not hits:
-                raise UsageError(f"pipeline '{p.name}': no stage has option or id '{key}'")
-            if len(owners) > 1:
-                raise UsageError(f"pipeline '{p.name}': option '{key}' is ambiguous "
-                                 f"({', '.join(sorted(owners))}); use stage.{key}=...")
-            for st in hits:
-                st.opts[key] = value
+            try:
+                touched = p._override(s)
+                for st in touched:  # validate the new value now, blaming the override
+                    get_stage(st.use)(where=f"{p.path}:{st.line}", **st.opts)
+            except UsageError as e:
+                if origin is None:
+                    raise
+                detail = e.detail
+                if detail.startswith(f"{p.path}:"):  # "<file>:<line>: message"
+                    detail = detail.split(": ", 1)[-1]
+                raise UsageError(f"{origin} {s}: {detail}") from None
         p.variant = label
         p.build("interp" if "interp" in p.modes else p.modes[0])  # validate now
         return p
+
+    def _override(self, s: str) -> list:
+        """Apply one override in place; the stage specs it changed."""
+        p = self
+        if "=" not in s:
+            raise UsageError(f"bad override '{s}' (use stage.option=value)")
+        key, value = s.split("=", 1)
+        key, value = key.strip(), value.strip()
+        if "." in key:
+            sid, opt = key.split(".", 1)
+            targets = [st for st in p.stages if st.id == sid or st.use == sid]
+            if not targets:
+                raise UsageError(f"pipeline '{p.name}' has no stage '{sid}' "
+                                 f"(stages: {', '.join(st.id for st in p.stages)})")
+            for st in targets:
+                cls = get_stage(st.use)
+                if opt not in {o.name for o in cls.options}:
+                    raise UsageError(f"stage '{sid}' has no option '{opt}' (options: "
+                                     f"{', '.join(o.name for o in cls.options) or 'none'})")
+                st.opts[opt] = value
+            return targets
+        stage_hits = [st for st in p.stages if st.id == key or st.use == key]
+        if stage_hits and value.lower() in ("off", "on", "false", "true", "0", "1"):
+            for st in stage_hits:
+                st.enabled = value.lower() in ("on", "true", "1")
+            return []
+        hits = [st for st in p.stages if key in {o.name for o in get_stage(st.use).options}]
+        owners = {st.id for st in hits}
+        if not hits:
+            raise UsageError(f"pipeline '{p.name}': no stage has option or id '{key}'")
+        if len(owners) > 1:
+            raise UsageError(f"pipeline '{p.name}': option '{key}' is ambiguous "
+                             f"({', '.join(sorted(owners))}); use stage.{key}=...")
+        for st in hits:
+            st.opts[key] = value
+        return hits
 
     def build(self, mode: str) -> list[tuple[StageSpec, Stage]]:
         if mode not in self.modes and not (mode == SR_MODE and self.has_sr):

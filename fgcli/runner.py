@@ -35,7 +35,7 @@ def parse_alphas(alpha: str | None, factor: int | None, mode: str) -> list[Fract
                 raise UsageError(f"extrapolation alpha must be > 0, got {a}")
             out.append(v)
         return sorted(set(out))
-    n = factor or 2
+    n = 2 if factor is None else factor
     if n < 2:
         raise UsageError("--factor must be >= 2")
     return [Fraction(k, n) for k in range(1, n)]
@@ -403,6 +403,10 @@ def check_device(device: str) -> str:
 
 
 def _progress(total: int, desc: str, enabled: bool):
+    from fgcli.progress import LogProgress, wants_log
+
+    if enabled and wants_log():  # stderr is a log file (a farm): one line now and then
+        return LogProgress(total, desc)
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit="frame", disable=None if enabled else True, file=sys.stderr,
@@ -453,7 +457,7 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
                  compression: str = "zip", command: str = "",
                  chunk: tuple[int, int] | None = None, on_frame=None,
                  scene_cuts: str = "auto", cut_threshold: float | None = None,
-                 backend: str = "auto", scale: int = 1) -> dict:
+                 backend: str = "auto", scale: int = 1, numbering: str = "scaled") -> dict:
     """Generate frames for a whole sequence. times: interpolation alphas, or extrapolation
     alphas (each alpha * k for k in 1..count). Returns the run summary (also written to
     OUT/fgen-run.json, or OUT/fgen-run.chunk-K-of-N.json for a chunk).
@@ -469,8 +473,12 @@ def run_sequence(reader, out, pipeline: Pipeline, mode: str, times: list[Fractio
     backend: per-pixel kernels, auto | torch | numba (fgcli.kernels.resolve); in every
     frame's ctx["backend"].
     scale: output resolution / input resolution (fgcli.sr): rendered frames are
-    reconstructed at that size (emit all writes them), generated frames made at it."""
-    plan = plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk)
+    reconstructed at that size (emit all writes them), generated frames made at it.
+    numbering: output frame numbers, scaled | input | sequential (fgcli.numbering)."""
+    from fgcli.numbering import renumber
+
+    plan = renumber(plan_outputs(reader.numbers, reader.step, mode, times, count, emit, chunk),
+                    numbering, mode, emit)
     out.check_all([out.path_for(on) for on in plan["outputs"]])
     timings = Timings()
     # decode the first frames while torch loads and the stages are built (1-3 s of start-up
@@ -520,6 +528,9 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     numbers, step, times, m, jobs, copies, mine = (
         plan["numbers"], plan["step"], plan["times"], plan["m"], plan["jobs"], plan["copies"],
         plan["mine"])
+    from fgcli.io.metadata import copy_header, finish_generated
+
+    numbering = plan.get("numbering", "scaled")
     state = RunState()
     sync = device_sync(device)
     pinfo = describe(pipeline)
@@ -553,13 +564,16 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                 path = out.path_for(on)
                 if out.should_write(path):
                     f = cache.get(n) if rec is None else rec.frame(n, timings)
+                    mv_scale = 1.0
                     if f.mv is not None and n != numbers[0]:
                         # in the merged sequence the previous output frame is the last
                         # generated one: rescale the rendered vectors (linear motion)
-                        f = f.replace(mv=f.mv * (1.0 - float(max(times))))
+                        mv_scale = 1.0 - float(max(times))
+                        f = f.replace(mv=f.mv * mv_scale)
                     writer.submit(path, f.replace(number=on).to("cpu"), **wkw,
                                   attributes={**attrs_common, "fgen:source_frames": str(n),
-                                              "fgen:rendered": 1})
+                                              **copy_header(f.header, n, on, numbering, m,
+                                                            mv_scale)})
                     written += 1
                 else:
                     skipped_existing += 1
@@ -605,6 +619,8 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                 windowed = rec is None and (getattr(f1, "data_window", None) is not None
                                             or getattr(f0, "data_window", None) is not None)
                 gen = generated_frame(ctx, on, (float(base) + float(t) * span) * m, f1, windowed)
+                gen = finish_generated(gen, ctx, f0, f1, a, b, float(t), float(prev_t), mode,
+                                       step, numbering, m)
                 src = f"{a},{b}" if a is not None else f"{b}"
                 writer.submit(out.path_for(on), gen.to("cpu"), **wkw,
                               attributes={**attrs_common, "fgen:alpha": float(t),
@@ -619,6 +635,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     reader.warn_nonfinite()
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
                "input": reader.folder, "input_frames": numbers, "timeline_scale": m,
+               "numbering": numbering, "numbering_note": plan.get("note"),
                "chunk": None if chunk is None else f"{chunk[0]}/{chunk[1]}",
                "no_backward_vectors": _no_backward(reader),
                "outputs": [os.path.basename(out.path_for(on)) for on in plan["outputs"]],

@@ -1,5 +1,5 @@
 """numba kernels (fgcli.kernels) against their torch reference (fgcli.ops and
-fgcli.kernels.reference): random inputs, the DESIGN.md section 5 hard cases, whole
+fgcli.kernels.reference): random inputs, the hard cases of docs/evaluation.md, whole
 pipelines with --backend numba vs torch, the dispatch, and the CLI switch.
 
 Exactness. The kernels repeat the reference's float32 operations one by one, with a fused
@@ -82,7 +82,7 @@ def random_frames(h, w, seed=0, mv_scale=4.0):
 
 
 def hard_cases():
-    """DESIGN.md section 5: (name, frames)."""
+    """docs/evaluation.md, hard cases: (name, frames)."""
     out = [("random 37x53", random_frames(37, 53)), ("1x1", random_frames(1, 1, 1)),
            ("1xN", random_frames(1, 17, 2)), ("Nx1", random_frames(13, 1, 3)),
            ("odd 7x13", random_frames(7, 13, 4)), ("fast 24x40", random_frames(24, 40, 5, 30.0))]

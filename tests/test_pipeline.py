@@ -164,10 +164,13 @@ def test_eval_factor_json_and_ranking(half_rate, tmp_path):
                                  "--no-progress", "--no-hdr-flip", "--report",
                                  str(tmp_path / "rep")])
     assert r.exit_code == 0, r.output
-    pngs = sorted(os.listdir(tmp_path / "rep"))
-    assert {"quality_vs_time.png", "stage_times.png", "worst_mob-fgsr.png",
-            "worst_blend.png"} <= set(pngs)
+    files = sorted(os.listdir(tmp_path / "rep"))
+    assert {"index.html", "summary.md", "quality_vs_time.png", "stage_times.png",
+            "per_frame_psnr.png", "crops.png", "colorbar.png"} <= set(files)
+    pngs = [p for p in files if p.endswith(".png")]
     assert all((tmp_path / "rep" / p).read_bytes()[:4] == b"\x89PNG" for p in pngs)
+    assert {"mob-fgsr_x4.png", "blend_error_x4.png", "gt.png"} <= set(
+        os.listdir(tmp_path / "rep" / "crops"))
     assert "| mob-fgsr |" in r.output
     res = json.loads(js.read_text())["pipelines"]
     for name in ("mob-fgsr", "mob-fgsr:motion=linear", "mv-warp", "blend", "repeat"):

@@ -12,7 +12,8 @@ from fgcli.io.options import INPUT_KEYS, OUTPUT_KEYS, input_options, output_opti
 # command line recorded in every output header, so a chunked, resumed or cluster run
 # writes the same bytes as one plain run
 EXECUTION_ONLY = {"--chunk": 1, "--executor": 1, "--scheduler": 1, "--workers": 1,
-                  "--resume": 0, "--overwrite": 0, "--no-progress": 0, "--json": 1}
+                  "--resume": 0, "--overwrite": 0, "--no-progress": 0, "--json": 1,
+                  "--threads": 1, "--dry-run": 0}
 
 
 def recorded_command(argv: list[str]) -> str:
@@ -31,11 +32,27 @@ def recorded_command(argv: list[str]) -> str:
 
 
 def common(f):
+    from fgcli.commands._help import threads_option
+    from fgcli.numbering import CHOICES
+
     f = click.option("--pipeline", "-p", default="mob-fgsr", show_default=True,
-                     help="Pipeline name, variant (mob-fgsr:motion=linear) or .toml path.")(f)
+                     help="Pipeline name, variant (mob-fgsr:motion=linear) or .toml path "
+                          "(fgen pipelines lists them).")(f)
     f = click.option("--set", "sets", multiple=True, metavar="STAGE.OPTION=VALUE",
-                     help="Override a stage option (repeatable).")(f)
-    f = click.option("--device", default="cpu", show_default=True, help="cpu or cuda.")(f)
+                     help="Override a stage option (repeatable; fgen describe PIPELINE "
+                          "shows them).")(f)
+    f = click.option("--numbering", type=click.Choice(CHOICES), default="scaled",
+                     show_default=True,
+                     help="Output frame numbers. scaled: the input's numbers times the "
+                          "smallest factor that makes every generated frame's an integer "
+                          "(said when it is not 1); input: the input's own numbers (refused "
+                          "when generated frames fall between them); sequential: 1 apart in "
+                          "time order from the first input frame.")(f)
+    f = click.option("--dry-run", is_flag=True,
+                     help="Print the frame plan (which input frames make which output "
+                          "files, per chunk) and exit; reads headers only, writes nothing.")(f)
+    f = click.option("--device", default="cpu", show_default=True,
+                     help="Compute device: cpu or cuda[:N].")(f)
     f = backend_option(f)
     f = click.option("--scale", type=click.IntRange(1, 8), default=1, show_default=True,
                      help="Output resolution / input resolution: the input is a (jittered) "
@@ -44,9 +61,15 @@ def common(f):
                           "rendered frames and generate at that size; the others generate "
                           "at the input size and upscale). G-buffer-only input frames (no "
                           "colour) are never read as colour sources.")(f)
-    f = click.option("--no-progress", is_flag=True, help="Hide the progress bar.")(f)
-    f = click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
-                     help="Also write the run summary (timings, skips) to this JSON file.")(f)
+    f = threads_option(f)
+    f = click.option("--no-progress", is_flag=True,
+                     help="No progress bar (or, when stderr is not a terminal, no periodic "
+                          "progress line; FGEN_PROGRESS_SECONDS sets its period, default "
+                          "30).")(f)
+    f = click.option("--json", "json_out", type=click.Path(allow_dash=True),
+                     default=None, metavar="FILE|-",
+                     help="Also write the run summary (timings, skips) to this JSON file "
+                          "('-': stdout).")(f)
     f = click.option("--chunk", default=None, metavar="K/N",
                      help="Farm chunk: write only part K of N contiguous parts of the output "
                           "frames (reads the inputs they need); N runs = one run.")(f)
@@ -70,7 +93,8 @@ def scene_cut_options(f):
                      show_default=True,
                      help="auto: detect camera cuts (histogram candidates confirmed when no "
                           "motion explains the new frame) and repeat the nearest frame there.")(f)
-    f = click.option("--scene-cut-threshold", "cut_threshold", type=float, default=None,
+    f = click.option("--scene-cut-threshold", "cut_threshold",
+                     type=click.FloatRange(min=0, min_open=True), default=None,
                      metavar="KL",
                      help="Histogram score (symmetric KL) that makes a cut candidate "
                           "(default 0.45, FSR 3's).")(f)
@@ -84,7 +108,7 @@ def executor_options(f):
                           "distributed workers.")(f)
     f = click.option("--scheduler", default=None, metavar="ADDRESS",
                      help="Dask scheduler (tcp://host:8786); default: a local cluster.")(f)
-    f = click.option("--workers", type=int, default=None,
+    f = click.option("--workers", type=click.IntRange(min=1), default=None,
                      help="Workers of the local Dask cluster (default: one per core).")(f)
     return f
 
@@ -108,7 +132,7 @@ def check_executor(executor, scheduler, workers, chunk=None):
 def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, times, emit,
         count, in_kw, out_kw, chunk=None, executor="local", scheduler=None, workers=None,
         scene_cuts="auto", cut_threshold=None):
-    import json
+    from fgcli.commands._help import apply_threads, check_json_path, write_json
 
     from fgcli import pipeline as pl
     from fgcli.batch import RunTask, expand_inputs, run_local
@@ -117,13 +141,16 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
     from fgcli.kernels import resolve
 
     check_executor(executor, scheduler, workers, chunk)
+    check_json_path(json_out)
     # --backend (backend_option) is read here, not passed by each command
-    backend = click.get_current_context().params.get("backend") or "auto"
-    scale = int(click.get_current_context().params.get("scale") or 1)  # --scale, alike
+    params = click.get_current_context().params
+    backend = params.get("backend") or "auto"
+    scale = int(params.get("scale") or 1)  # --scale, alike
+    apply_threads(params.get("threads"))
     resolve(backend, device)  # fail early (numba missing, numba with cuda)
     p = pl.load(pipeline)  # fail early on a bad pipeline or option
     if sets:
-        p.with_overrides(list(sets), label=p.label)
+        p.with_overrides(list(sets), label=p.label, origin="--set")
     if p.scale_only and scale == 1:
         from fgcli.errors import UsageError
 
@@ -136,8 +163,18 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
                      sets=tuple(sets), device=device, times=tuple(times), emit=emit, count=count,
                      in_kw={k: v for k, v in in_kw.items() if k != "pattern"}, out_kw=out_kw,
                      command=command, chunk=ch, name=name, scene_cuts=scene_cuts,
-                     cut_threshold=cut_threshold, backend=backend, scale=scale)
+                     cut_threshold=cut_threshold, backend=backend, scale=scale,
+                     numbering=params.get("numbering") or "scaled")
              for name, folder, pattern, od in seqs]
+    if params.get("numbering") == "input":  # refused before any folder is made
+        from fgcli.commands._plan import check_plans
+
+        check_plans(tasks)
+    if params.get("dry_run"):
+        from fgcli.commands._plan import print_plans
+
+        print_plans(tasks, executor, workers)
+        return
     if executor == "dask":
         from fgcli.executor import run_dask
 
@@ -170,9 +207,9 @@ def run(mode, in_dirs, out_dir, pipeline, sets, device, no_progress, json_out, t
             click.echo(f"scene cuts (nearest frame repeated, no blending) at output frames "
                        f"{', '.join(str(c) for c in sc['cuts'])}; scores in fgen-run.json",
                        err=True)
+        if summary.get("numbering_note") and summary.get("written"):
+            click.echo(f"note: {summary['numbering_note']}", err=True)
         if summary.get("stale_temp_removed"):
             click.echo(f"removed {summary['stale_temp_removed']} temporary files left by a "
                        "killed run", err=True)
-    if json_out:
-        with open(json_out, "w") as fh:
-            json.dump(summaries[0] if len(summaries) == 1 else summaries, fh, indent=1)
+    write_json(json_out, summaries[0] if len(summaries) == 1 else summaries)

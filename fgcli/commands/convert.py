@@ -12,8 +12,8 @@ _CHECK = ("alpha", "depth", "mv", "normal", "albedo", "roughness")
 @click.command(help="Rewrite a sequence into another layout: normalise Blender or Nuke "
                     "renders (or a TOML-described layout) to the fgen layout, or back. "
                     "Outputs keep the input's file names.")
-@click.argument("input_dir", type=click.Path(file_okay=False))
-@click.argument("output_dir", type=click.Path(file_okay=False))
+@click.argument("input_dir", type=click.Path())
+@click.argument("output_dir", type=click.Path())
 @input_options
 @output_options
 def cmd(input_dir, output_dir, **kw):

@@ -23,7 +23,7 @@ def cmd(name, sets, as_json):
     if base in pl.available() or base.endswith(".toml"):
         p = pl.load(name)
         if sets:
-            p = p.with_overrides(list(sets), label=p.label)
+            p = p.with_overrides(list(sets), label=p.label, origin="--set")
         d = pl.describe(p)
         if as_json:
             click.echo(json.dumps(d, indent=1))

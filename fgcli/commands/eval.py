@@ -1,31 +1,41 @@
 import click
 
 from fgcli.commands._generate import executor_options, scene_cut_options
+from fgcli.commands._help import SectionedCommand, threads_option
 from fgcli.io.options import input_options
 
 
-@click.command("eval")
-@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(file_okay=False),
-                metavar="IN_DIR...")
-@click.option("--gt", "gt_dir", type=click.Path(file_okay=False), default=None,
+@click.command("eval", cls=SectionedCommand)
+@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(), metavar="IN_DIR...")
+@click.option("--gt", "gt_dir", type=click.Path(), default=None, metavar="GT_DIR",
               help="Ground-truth frames on the same frame-number timeline as IN.")
-@click.option("--factor", type=int, default=None,
+@click.option("--factor", type=click.IntRange(min=2), default=None, metavar="N",
               help="IN is full-rate: keep every N-th frame as input, score the rest.")
 @click.option("--pipeline", "-p", "pipelines", default="all", show_default=True,
               help="Comma-separated pipelines, or 'all'.")
 @click.option("--variant", "variants", multiple=True, metavar="PIPE:OPT=V[,OPT=V]",
               help="Also run a variant, e.g. mob-fgsr:motion=linear or mob-fgsr:gap_fill=off.")
-@click.option("--mode", type=click.Choice(["interp", "extrap"]), default="interp", show_default=True)
+@click.option("--mode", type=click.Choice(["interp", "extrap"]), default="interp", show_default=True,
+              help="interp: score frames between input frames; extrap: frames after each "
+                   "input frame, made from it and its history only.")
 @click.option("--scale", type=click.IntRange(1, 8), default=1, show_default=True,
               help="Output resolution / input resolution: IN is a (jittered) low-resolution "
                    "render, GT its ground truth at SCALE x its size on the same frame "
                    "numbers; scores SS frames (the rendered times, reconstructed) and ESS "
                    "frames (the generated times) separately.")
-@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
-              help="Write the scores as JSON.")
-@click.option("--report", "report_dir", type=click.Path(file_okay=False), default=None,
-              help="Write PNG plots (quality vs time, stage times, worst-frame crops).")
-@click.option("--device", default="cpu", show_default=True)
+@click.option("--json", "json_out", type=click.Path(allow_dash=True),
+              default=None, metavar="FILE|-",
+              help="Write the scores as JSON ('-': stdout; the table then goes to stderr).")
+@click.option("--report", "report_dir", type=click.Path(), default=None, metavar="DIR",
+              help="Write a report: index.html (self-contained), summary.md and the figures "
+                   "as PNG (table, per-frame PSNR, quality vs time, stage times, the same "
+                   "crop of every pipeline and the ground truth with a shared error scale).")
+@click.option("--repeat", type=click.IntRange(min=1), default=1, show_default=True,
+              metavar="N",
+              help="Run the evaluation N times: timings are the median of the N runs, with "
+                   "their spread (min-max); the scores are the first run's (they repeat).")
+@click.option("--device", default="cpu", show_default=True,
+              help="Compute device: cpu or cuda[:N].")
 @click.option("--region", type=click.Choice(["data", "display"]), default="data",
               show_default=True,
               help="data: score the bounding box of the data windows of the target and its "
@@ -36,14 +46,15 @@ from fgcli.io.options import input_options
                    "the CUDA path); auto = torch until the kernels are faster "
                    "(docs/performance.md).")
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
-@click.option("--no-progress", is_flag=True)
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@threads_option
 @executor_options
 @scene_cut_options
 @input_options
-def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, report_dir, device,
-        region, backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
-        **in_kw):
-    """Score pipelines against ground truth (DESIGN.md section 4).
+def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, report_dir, repeat,
+        device, region, backend, no_hdr_flip, no_progress, threads, executor, scheduler, workers,
+        scene_cuts, cut_threshold, **in_kw):
+    """Score pipelines against ground truth (the protocol: docs/evaluation.md).
 
     \b
     fgen eval IN --gt GT       IN = rendered input, GT = reference frames between/after
@@ -57,7 +68,6 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, rep
     whose surface is not visible in the source input frame; moving = pixels that moved
     more than 0.5 px since it.
     """
-    import json
     import math
     import os
 
@@ -68,8 +78,15 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, rep
 
     from fgcli.kernels import resolve
 
+    from fgcli.commands._help import apply_threads, check_json_path, write_json
+    from fgcli.report import check_report_dir, merge_repeats
+
     check_executor(executor, scheduler, workers)
+    check_json_path(json_out)
+    apply_threads(threads)
     resolve(backend, device)  # fail early
+    if report_dir:
+        check_report_dir(report_dir)  # an output problem (exit 3) before any work
     if len(in_dirs) > 1 and gt_dir:
         raise UsageError("--gt takes one input sequence; for several, give folders with "
                          "input/ and gt/ each, or use --factor")
@@ -107,10 +124,13 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, rep
         from fgcli.executor import eval_dask
 
         frames = sum(len(make_tasks(s, mode)) for s in srcs) * len(chosen)
-        results = eval_dask(tasks, scheduler, workers, progress=not no_progress,
-                            total_frames=frames)
+        runs = eval_dask([t for t in tasks for _ in range(repeat)], scheduler, workers,
+                         progress=not no_progress, total_frames=frames * repeat)
+        results = [merge_repeats(runs[i * repeat:(i + 1) * repeat])
+                   for i in range(len(tasks))]
     else:
-        results = [execute_eval(t, progress=not no_progress) for t in tasks]
+        results = [merge_repeats([execute_eval(t, progress=not no_progress)
+                                  for _ in range(repeat)]) for t in tasks]
 
     def clean(o):
         if isinstance(o, float) and (math.isnan(o) or math.isinf(o)):
@@ -123,40 +143,42 @@ def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, rep
 
     from fgcli import evaluate as ev
 
+    # --json -: stdout carries the JSON alone, the table goes to stderr
+    echo = click.echo if json_out != "-" else (lambda *a, **k: click.echo(*a, err=True))
     for t, src, result in zip(tasks, srcs, results):
         worst = result.pop("_worst")
+        compare = result.pop("_compare", None)
         if len(tasks) > 1:
-            click.echo(f"## {t.label()}")
-        click.echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
+            echo(f"## {t.label()}")
+        echo(f"# fgen eval: {mode}, {result['frames']} ground-truth frames, inputs "
                    f"{src.inputs[0]}..{src.inputs[-1]}")
-        click.echo(f"# color: {result['display']}; backend: {result.get('backend')}")
+        echo(f"# color: {result['display']}; backend: {result.get('backend')}")
         reg = result["region"]
         if reg["scored_fraction"] < 1.0:
-            click.echo(f"# scored: {reg['what']} ({100 * reg['scored_fraction']:.0f}% of the "
+            echo(f"# scored: {reg['what']} ({100 * reg['scored_fraction']:.0f}% of the "
                        f"display window; --region display scores all of it)")
         else:
-            click.echo(f"# scored: {reg['what']}")
+            echo(f"# scored: {reg['what']}")
         if result["scene_cuts"]["cuts"]:
-            click.echo(f"# scene cuts (nearest frame repeated) at frames "
+            echo(f"# scene cuts (nearest frame repeated) at frames "
                        f"{', '.join(str(c) for c in result['scene_cuts']['cuts'])}")
         if scale > 1:
             from fgcli.sr import markdown_tables
 
-            click.echo(f"# x{scale}: SS frames {len(result['ss_frames'])}, ESS frames "
-                       f"{len(result['ess_frames'])}"
-                       + (f" ({len(result['gbuffer_only_inputs'])} of them G-buffer-only "
-                          f"input frames)" if result["gbuffer_only_inputs"] else ""))
-            click.echo(markdown_tables(result))
-            click.echo(f"## all scored frames, x{scale}")
-        click.echo(ev.markdown_table(result))
+            echo(f"# x{scale}: SS frames {len(result['ss_frames'])}, ESS frames "
+                 f"{len(result['ess_frames'])}"
+                 + (f" ({len(result['gbuffer_only_inputs'])} of them G-buffer-only "
+                    f"input frames)" if result["gbuffer_only_inputs"] else ""))
+            echo(markdown_tables(result))
+            echo(f"## all scored frames, x{scale}")
+        echo(ev.markdown_table(result))
         if report_dir:
             from fgcli.report import write_report
 
             where = report_dir if len(tasks) == 1 else os.path.join(report_dir, t.label())
-            files = write_report(result, worst, where)
+            files = write_report(result, worst, where, compare=compare)
             click.echo(f"# report: {', '.join(files)}", err=True)
     if json_out:
         data = results[0] if len(results) == 1 else {
             "sequences": {t.label(): r for t, r in zip(tasks, results)}}
-        with open(json_out, "w") as fh:
-            json.dump(clean(data), fh, indent=1)
+        write_json(json_out, clean(data))

@@ -1,16 +1,18 @@
 import click
 
 from fgcli.commands._generate import common, run, split_kwargs
+from fgcli.commands._help import SectionedCommand
 
 
-@click.command("extrapolate")
-@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(file_okay=False),
+@click.command("extrapolate", cls=SectionedCommand)
+@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(),
                 metavar="IN_DIR... OUT_DIR")
 @click.option("--alpha", default="0.5", show_default=True,
               help="Time past each rendered frame, in input frame intervals (comma list allowed).")
-@click.option("--count", type=int, default=1, show_default=True,
+@click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Frames per rendered frame, at alpha, 2*alpha, ... (alpha*count < 1).")
-@click.option("--emit", type=click.Choice(["generated", "all"]), default="generated", show_default=True)
+@click.option("--emit", type=click.Choice(["generated", "all"]), default="generated", show_default=True,
+              help="'all' writes the merged higher-rate sequence with rendered frames copied through.")
 @common
 def cmd(in_dirs, alpha, count, emit, pipeline, sets, device, no_progress, json_out, chunk,
         executor, scheduler, workers, scene_cuts, cut_threshold, **kw):

@@ -100,6 +100,10 @@ def describe(reader, do_scan: bool = False, layout_option=None) -> dict:
                                    for p in h.parts),
         "overscan": [(p.x, p.y, p.data_width, p.data_height) for p in h.parts if p.overscan],
     }
+    from fgcli.io.metadata import fgen_metadata
+
+    # fgen's own metadata (time, provenance, synth facts) of the first frame
+    d["fgen"] = fgen_metadata(h.parts[0].attributes)
     if do_scan:
         d["nonfinite"] = scan(reader)
     return d
@@ -152,6 +156,13 @@ def _text(d: dict) -> str:
             where = f"  [part {c['part']}" + (f" {c['part_name']}" if c.get("part_name") else "")
             where += (f", view {c['view']}]" if c.get("view") else "]")
         lines.append(f"  {c['name']:<24} {c['type']}{where}")
+    if d.get("fgen"):
+        lines.append(f"fgen metadata (frame {d['first']}):")
+        for k, v in d["fgen"].items():
+            text = v if isinstance(v, str) else json.dumps(v)
+            if len(text) > 100:
+                text = text[:97] + "..."
+            lines.append(f"  fgen:{k:<22} {text}")
     for n in d["notes"]:
         if not n.startswith("view '"):  # already on the view line
             lines.append(f"note: {n}")
@@ -170,7 +181,7 @@ def _text(d: dict) -> str:
 
 @click.command(help="Describe a sequence: layout, resolution, frames, channels with types, "
                     "cameras, derived vectors; --scan counts NaN/Inf per channel.")
-@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("folder", type=click.Path())
 @input_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--scan", "do_scan", is_flag=True,

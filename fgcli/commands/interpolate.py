@@ -1,13 +1,17 @@
 import click
 
 from fgcli.commands._generate import common, run, split_kwargs
+from fgcli.commands._help import SectionedCommand
 
 
-@click.command("interpolate")
-@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(file_okay=False),
+@click.command("interpolate", cls=SectionedCommand)
+@click.argument("in_dirs", nargs=-1, required=True, type=click.Path(),
                 metavar="IN_DIR... OUT_DIR")
-@click.option("--factor", type=int, default=None, help="N-1 frames between each rendered pair (default 2).")
-@click.option("--alpha", default=None, help="Comma-separated times in (0,1), e.g. 0.25,0.5,0.75.")
+@click.option("--factor", type=click.IntRange(min=2), default=None, metavar="N",
+              help="Frame-rate factor: N-1 frames between each rendered pair (default 2).")
+@click.option("--alpha", default=None, metavar="A[,A...]",
+              help="Times between each rendered pair, in (0,1), e.g. 0.25,0.5,0.75 "
+                   "(instead of --factor).")
 @click.option("--emit", type=click.Choice(["generated", "all"]), default="generated", show_default=True,
               help="'all' writes the merged higher-rate sequence with rendered frames copied through.")
 @common

@@ -34,11 +34,14 @@ def _widths(ctx, param, value):
               help="Random training scenes (seeds 0 .. N-1), one sample each.")
 @click.option("--val-scenes", type=click.IntRange(min=1), default=64, show_default=True,
               help="Held-out random scenes (seeds from 1,000,000).")
-@click.option("--steps", type=click.IntRange(min=1), default=8000, show_default=True)
+@click.option("--steps", type=click.IntRange(min=1), default=8000, show_default=True,
+              help="Optimiser steps in all (a continued run counts the steps it has done).")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
-              show_default=True)
-@click.option("--batch", type=click.IntRange(min=1), default=8, show_default=True)
-@click.option("--patch", type=click.IntRange(min=32), default=128, show_default=True)
+              show_default=True, help="Learning rate (Adam).")
+@click.option("--batch", type=click.IntRange(min=1), default=8, show_default=True,
+              help="Samples per step.")
+@click.option("--patch", type=click.IntRange(min=32), default=128, show_default=True,
+              help="Side of the square training crops, in pixels.")
 @click.option("--widths", callback=_widths, help="Encoder widths per level "
               "(default 16,24,32,48).")
 @click.option("--no-guides", is_flag=True, help="Train without guiding flows (zero guides "
@@ -55,16 +58,17 @@ def _widths(ctx, param, value):
 @click.option("--occlusion-weight", type=click.FloatRange(min=0), default=0.0,
               show_default=True,
               help="Extra Charbonnier weight where the two guided samples are different "
-                   "surfaces (depths differ by 22 %% or more: one is an occluder and the "
+                   "surfaces (depths differ by 22 % or more: one is an occluder and the "
                    "merge mask alone picks the frame); 0 = plain mean.")
 @click.option("--init", type=click.Path(dir_okay=False, exists=True),
               help="Start a new run from this checkpoint's weights (fine-tuning).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Random seed of the crops, batches and initial weights.")
 @click.option("--threads", type=click.IntRange(min=1), help="CPU threads (default: all).")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False),
               help="After training, export best.pt (ONNX + state dict) into this folder "
                    "(the shipped weights live in fgcli/nets/weights/).")
-@click.option("--no-progress", is_flag=True)
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
 def cmd(network, data_dir, run_dir, scenes, val_scenes, steps, lr, batch, patch, widths,
         no_guides, name, light_scenes, hole_weight, occlusion_weight, init, seed, threads,
         export_dir, no_progress):

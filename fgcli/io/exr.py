@@ -582,13 +582,19 @@ class _DropLibraryLines:
         self._drop_newline = False
 
     def write(self, text):
+        if self._drop_newline:
+            # the rest of the warning line: the binding prints it in pieces (print(a, b,
+            # ...): "part", " ", "0", " ", "-", " ", message, "\n"), all dropped
+            if "\n" not in text:
+                return len(text)
+            self._drop_newline = False
+            rest = text.split("\n", 1)[1]
+            if rest:
+                self._stream.write(rest)
+            return len(text)
         if _EXR_NOISE.match(text.encode("utf-8", "replace")):
             self._drop_newline = not text.endswith("\n")
             return len(text)
-        if self._drop_newline and text == "\n":
-            self._drop_newline = False
-            return 1
-        self._drop_newline = False
         return self._stream.write(text)
 
     def __getattr__(self, name):
