@@ -420,3 +420,29 @@ def test_jitter_from_a_sidecar_and_from_the_projection(lowres, tmp_path):
     got = frame_jitter(f.replace(camera=jittered))
     assert got == pytest.approx((jx, jy), abs=1e-9)
     assert frame_jitter(f) is None  # the synth's projection is the unjittered one
+
+
+def test_a_gbuffer_only_first_frame(lowres, tmp_path):
+    """A sequence that starts with a frame that was not shaded: the layout comes from the
+    shaded frames, the run and the evaluation start at the first shaded frame."""
+    d = tmp_path / "g"
+    shutil.copytree(lowres / "gbuf", d)
+    os.unlink(d / [f for f in os.listdir(d) if f.endswith(".0000.exr")][0])
+    r = _run(["info", str(d), "--json"])
+    info = json.loads(r.stdout if hasattr(r, "stdout") else r.output)
+    assert info["gbuffer_only"][:1] == [2] and info["frames"][0] == 4
+    out = tmp_path / "o"
+    _run(["extrapolate", str(d), str(out), "--scale", "2", "--pipeline", "mob-fgsr",
+          "--no-progress"])
+    js = tmp_path / "r.json"
+    _run(["eval", str(d), "--gt", str(lowres / "gt"), "--scale", "2", "--mode", "extrap",
+          "--pipeline", "taau,upscale", "--no-hdr-flip", "--no-progress", "--json", str(js)])
+    res = json.loads(js.read_text())
+    assert res["inputs"][0] == 4 and 2 in res["gbuffer_only_inputs"]
+    for p in res["pipelines"].values():
+        assert math.isfinite(p["ss"]["psnr"]) and math.isfinite(p["ess"]["psnr"])
+
+
+def test_info_lists_gbuffer_only_frames():
+    r = _run(["info", os.path.join(SAMPLES, "orbit", "lowres_gbuffer")])
+    assert "G-buffer-only: 8 frames" in r.output and "jitter" in r.output

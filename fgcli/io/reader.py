@@ -357,18 +357,32 @@ class SequenceReader:
 
 def _gbuffer_only(seq, layout, view) -> tuple[list[int], str]:
     """(numbers of the frames without colour channels, path of the first frame with them).
-    A file whose layout cannot be told raises as it would anyway; with no shaded frame at
-    all, nothing is set apart (reading then names the missing colour channels)."""
+    The layout is the one given, else the one detected on the shaded frames (a frame
+    without colour may not tell its layout by itself); a sequence whose layout cannot be
+    told raises as it would anyway; with no shaded frame at all, nothing is set apart
+    (reading then names the missing colour channels)."""
+    headers = {}
+    lay, err = None, None
+    for n in seq.frames:
+        try:
+            headers[n] = exr.read_header(seq.files[n])
+        except InputError as e:
+            raise e.with_frame(n) from None
+        if lay is None:
+            try:
+                lay = layouts.resolve(layout, headers[n])
+            except InputError as e:
+                err = err or e.with_frame(n)
+    if lay is None:
+        raise err
     gbuf, first = [], None
     for n in seq.frames:
-        path = seq.files[n]
         try:
-            h = exr.read_header(path)
-            has = "color" in layouts.resolve(layout, h).describe(h, view).names
+            has = "color" in lay.describe(headers[n], view).names
         except InputError as e:
             raise e.with_frame(n) from None
         if has:
-            first = first or path
+            first = first or seq.files[n]
         else:
             gbuf.append(n)
     if first is None:
