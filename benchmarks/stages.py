@@ -383,7 +383,7 @@ def scale2_rows(names, f0, f1, repeat, sync, backend, ref) -> dict:
     from fgcli.runner import RunState
     from fgcli.sr import Reconstructor, generate
 
-    lr = [half_res(f0, 0), half_res(f1, 1)]
+    lr = [half_res(f0, 0).replace(number=0), half_res(f1, 1).replace(number=1)]
     H, W = f1.color.shape[-2:]
     print(f"\n--scale 2: input {lr[0].width}x{lr[0].height} (jittered), output {W}x{H}; "
           f"SS = the rendered frame reconstructed (with history), ESS = one generated frame; "
