@@ -651,6 +651,8 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                   if getattr(reader, "gbuffer_only", None) else {}),
                **({"jitter_missing": rec.no_jitter} if rec is not None and rec.no_jitter
                   else {}),
+               **({"sr_history_reset_at_cuts": rec.cuts} if rec is not None and rec.cuts
+                  else {}),
                "kernel_load_ms": None if kernel_load_s is None else round(kernel_load_s * 1e3, 1)}
     name = "fgen-run.json" if chunk is None else f"fgen-run.chunk-{chunk[0]}-of-{chunk[1]}.json"
     atomic.write_text(os.path.join(out.path, name), json.dumps(summary, indent=1))

@@ -133,7 +133,8 @@ class Reconstructor:
         f = self.read(n)
         jit = frame_jitter(f)
         if jit is None:
-            self.no_jitter.append(n)
+            if n not in self.no_jitter:  # (a run that starts over reads it again)
+                self.no_jitter.append(n)
             jit = (0.0, 0.0)
         t0 = time.perf_counter()
         depth_hr, mv_hr, _ = upsample_geometry(f.depth, f.mv, self.scale, jit)
@@ -150,7 +151,8 @@ class Reconstructor:
         facts = frame_facts(fctx)
         if facts.get("scene_cut"):  # no history across a camera cut
             self.state.store.clear()
-            self.cuts.append(n)
+            if n not in self.cuts:  # (a run that starts over meets it again)
+                self.cuts.append(n)
         facts["scene_cut"] = False
         ctx = run_stages(self.stages, ctx, timings, label=str(n), sync=self.sync, facts=facts)
         hr = upscale_frame(f, self.scale, color=ctx["color"], jitter=jit)
