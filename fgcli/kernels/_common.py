@@ -54,7 +54,8 @@ WIDE_VECTORS = use_wide_vectors()
 # of an unchanged file stale (a git pull, an upgrade over an old cache). So the kernels'
 # cache stamp is their file's hash and the hash of every kernel source file.
 _KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))
-_NOT_KERNEL_CODE = ("__init__.py", "ops.py", "reference.py")  # wrappers: no compiled code
+# no compiled code: wrappers, the torch reference, the exactness contracts
+_NOT_KERNEL_CODE = ("__init__.py", "ops.py", "reference.py", "contract.py")
 
 
 def kernel_sources_hash(folder: str = _KERNEL_DIR) -> bytes:
