@@ -38,7 +38,7 @@ from fgcli.io.options import input_options
 def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, json_out, report_dir, device,
         region, backend, no_hdr_flip, no_progress, executor, scheduler, workers, scene_cuts, cut_threshold,
         **in_kw):
-    """Score pipelines against ground truth (DESIGN.md section 4).
+    """Score pipelines against ground truth (docs/design.md section 4).
 
     \b
     fgen eval IN --gt GT       IN = rendered input, GT = reference frames between/after
