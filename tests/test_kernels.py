@@ -29,6 +29,7 @@ from fgcli.kernels import ops as K  # noqa: E402
 from fgcli.kernels.contract import CONTRACTS, EXACT, PIPELINE, Contract, check  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+INF, NAN = float("inf"), float("nan")
 C = CONTRACTS
 # a pipeline's frames as written (half floats): PIPELINE's differences may round to
 # neighbouring binary16 values, one half ulp apart (2**-10 relative)
@@ -49,6 +50,40 @@ def zero_signs_alike(name, a, b):
     """Where the reference holds a zero, the kernel holds a zero of the same sign."""
     z = b == 0
     assert bool((a[z] == 0).all()) and torch.equal(a[z].signbit(), b[z].signbit()), name
+
+
+def test_every_kernel_op_declares_a_contract():
+    from fgcli.kernels import KERNEL_OPS
+
+    assert set(KERNEL_OPS) <= set(CONTRACTS), set(KERNEL_OPS) - set(CONTRACTS)
+    assert all(c.why for c in CONTRACTS.values())
+
+
+def test_the_contract_check_fails_where_it_should():
+    """Decisions exact, NaN / inf where the reference has them, floats within the bound
+    (per channel), unsure elements excluded, exact contracts value for value."""
+    from fgcli.kernels.contract import BILINEAR, LERP
+
+    ref = torch.tensor([[[1.0, 2.0, INF, NAN]], [[1e-3, 5.0, -1.0, 0.0]]])
+    ok = ref.clone()
+    ok[0, 0, 0] = torch.nextafter(ref[0, 0, 0], torch.tensor(9.0))  # 1 ulp
+    ok[1, 0, 3] = 1e-4  # within rel x the channel's range (5.0)
+    check("bound", ok, ref, BILINEAR)
+    for i, v in ((0, 1.01), (2, -INF), (3, 0.0)):  # beyond the bound; inf / NaN moved
+        bad = ref.clone()
+        bad[0, 0, i] = v
+        with pytest.raises(AssertionError):
+            check("moved", bad, ref, BILINEAR)
+    with pytest.raises(AssertionError):
+        check("2 ulp", ok * (1 + 2 ** -22), ref, LERP)
+    bad = ref.clone()
+    bad[0, 0, 0] = 3.0
+    check("unsure", bad, ref, BILINEAR, unsure=torch.tensor([[True, False, False, False]]))
+    with pytest.raises(AssertionError):
+        check("exact", ok, ref, EXACT)
+    with pytest.raises(AssertionError):  # a decision
+        check("mask", torch.tensor([True, False]), torch.tensor([True, True]), BILINEAR)
+    check("tree", (ref, None, {"a": ref > 1}), (ref.clone(), None, {"a": ref > 1}), EXACT)
 
 
 # ----------------------------------------------------------------------------- inputs
