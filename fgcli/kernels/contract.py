@@ -25,6 +25,7 @@ Importing this module does not import torch or numba.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 EPS32 = 2.0 ** -23  # float32 machine epsilon (one ulp of 1.0)
@@ -91,7 +92,7 @@ CONTRACTS: dict[str, Contract] = {
     "track_history": EXACT,
     "dilate_trajectory": EXACT,
     "dilated_positions": EXACT,
-    "warp_positions": EXACT,
+    "warp_positions": BILINEAR,
     "collect_background": EXACT,
     "project_background": EXACT,
     "background_fill": BILINEAR,
@@ -152,10 +153,12 @@ def check(name: str, got, want, contract: Contract, unsure=None) -> None:
         assert len(got) == len(want), name
         for i, (x, y) in enumerate(zip(got, want)):
             check(f"{name}[{i}]", x, y, contract, unsure)
-    elif hasattr(want, "__dataclass_fields__"):
+    elif dataclasses.is_dataclass(want):
         assert type(got) is type(want), name
-        for k in want.__dataclass_fields__:
-            check(f"{name}.{k}", getattr(got, k), getattr(want, k), contract, unsure)
+        for f in dataclasses.fields(want):
+            if f.compare:  # (compare=False: bookkeeping such as SplatResult.scratch)
+                check(f"{name}.{f.name}", getattr(got, f.name), getattr(want, f.name),
+                      contract, unsure)
     else:
         assert got == want, f"{name}: {got!r} vs {want!r}"
 
