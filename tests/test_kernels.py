@@ -6,8 +6,9 @@ Exactness: each op's contract (fgcli.kernels.contract.CONTRACTS) says what must 
 on every CPU (decisions: masks, holes, integer vectors, keys, NaN / inf positions) and how
 close its floats must be (torch's vector kernels fuse some products that its plain ones
 round on their own). The comparisons below apply it, so they pass under any
-ATEN_CPU_CAPABILITY; byte-for-byte checks remain only between two runs of the kernels
-themselves (in place or not, two threads or one, fused or not).
+ATEN_CPU_CAPABILITY. Bit-for-bit checks remain where the contract is exact (integer
+arithmetic, correctly rounded float32 operations in the reference's order) and between two
+runs of the kernels themselves (in place or not, two threads or one, fused or not).
 """
 from __future__ import annotations
 
