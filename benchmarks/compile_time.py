@@ -11,7 +11,7 @@ which are listed too). One process on purpose: ``fgcli.kernels.ops.warm`` splits
 between two, which halves the wall time but mixes the figures.
 
 Use it after changing a kernel: numba's parallel-loop passes cost time that grows with
-the square of a prange body's size (docs/performance.md, stop 38), so a kernel that grows
+the square of a prange body's size (docs/performance.md), so a kernel that grows
 can take minutes to compile on a slow CPU without running any slower.
 """
 from __future__ import annotations

@@ -5,8 +5,8 @@ the plain serial OpenImageIO floor on the same frames, measured in the same run.
 
 The floor reads each input file in one call, keeps colour/depth/mv, and writes one
 6-channel (half RGB, float Z and mv) zip frame per consecutive pair, serially: the blended
-colour, the depth and half the vectors (until stop 17 it wrote zero vectors, which zip
-squeezes to nothing: ~300 ms per 1080p frame less than writing real ones). Prints both
+colour, the depth and half the vectors (real vectors: zero ones, which zip squeezes to
+nothing, would make the floor ~300 ms per 1080p frame too fast). Prints both
 wall times and their ratio (target: fgen <= 1.1x the floor). Make a 1080p input with
 `fgen synth` (not committed: big files).
 """

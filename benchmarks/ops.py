@@ -2,7 +2,7 @@
 
 Prints the median of a few runs per op at the given size on a synthetic scene (textured
 background, moving rectangles, camera pan), plus the ratio to a reference measured in the
-same run (one full-frame colour copy), as docs/performance.md asks.
+same run (one full-frame colour copy), as docs/design.md section 6 asks.
 """
 from __future__ import annotations
 

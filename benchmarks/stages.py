@@ -59,8 +59,7 @@ def cpu_model() -> str:
 
 def openmp_env() -> dict:
     """The OpenMP wait settings the run used (torch's runtime, which numba's kernels share:
-    the spin after each parallel region changes every figure; docs/performance.md, stop
-    42)."""
+    the spin after each parallel region changes every figure; docs/performance.md)."""
     return {k: os.environ.get(k, "(unset)") for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
 
 

@@ -1,4 +1,4 @@
-"""`fgen eval`: the evaluation protocol (docs/evaluation.md).
+"""`fgen eval`: the evaluation protocol of docs/design.md section 4.
 
 Input and ground truth share one frame-number timeline. Two sources:
 - with ground truth: IN is the rendered input (step >= 2, MVs spanning the input interval),

@@ -1,4 +1,4 @@
-"""The frame model every stage sees (docs/conventions.md).
+"""The frame model every stage sees (docs/design.md section 2, docs/conventions.md).
 
 Tensors are torch float32, channel-first (C, H, W). Pixel centres at integer + 0.5, x right,
 y down, origin top-left.

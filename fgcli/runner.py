@@ -553,7 +553,7 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
 
     # two frames encode at once where there are two cores: the encode (zip of float depth
     # and vectors) is the longest per-frame task of a CPU run, ~2x the compute at 1080p
-    # (docs/performance.md: 0.97-1.02x -> 0.87-0.88x of the I/O floor on orbit)
+    # (two at once: ~10 % less wall time end to end, docs/performance.md)
     writer = AsyncWriter(out, timings, depth=int(os.environ.get("FGEN_WRITE_QUEUE", "2")),
                          threads=IOThreads._env("FGEN_WRITE_THREADS",
                                                 2 if _cpu_count() > 1 else 1))

@@ -4,7 +4,7 @@ On CUDA every value an op reads back to Python (`.item()`, `bool(t.any())`, `non
 host round-trip that stalls the stream, so there the ops take dense, branch-free paths
 (`fgcli.ops._util.reads_back`). `FORCE_DENSE` makes the CPU take them too, so this machine
 tests them: they must give what the CPU paths give, on random inputs and on the hard cases
-of docs/evaluation.md, hard cases, and the stages of the heuristic pipelines must read nothing back
+of docs/design.md section 5, and the stages of the heuristic pipelines must read nothing back
 (a trap on every read-back method stands in for torch's CUDA sync debug mode, which
 `benchmarks/stages.py --device cuda --sync-report` uses on a GPU).
 """

@@ -17,6 +17,7 @@ from fgcli.errors import UsageError
 from fgcli.frame import Frame
 from fgcli.io.frames import read_frame, write_frame
 from fgcli.io.reader import SequenceReader
+from fgcli.kernels.contract import PIPELINE, check
 from fgcli.ops import fsr3
 from fgcli.ops.pyramid import pyramid_inpaint, weighted_pyramid
 from fgcli.runner import make_ctx
@@ -520,8 +521,5 @@ def test_block_field_option_same_on_both_backends():
                 outs[name, be] = pl.run_stages(stages, ctx)["color"]
     blk = outs["fsr3-interp:field=block", "torch"]
     assert bool(torch.isfinite(blk).all())
-    if torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX"):  # FMA builds
-        assert torch.equal(blk, outs["fsr3-interp:field=block", "numba"])
-    else:
-        assert torch.allclose(blk, outs["fsr3-interp:field=block", "numba"], atol=1e-4)
+    check("field=block", outs["fsr3-interp:field=block", "numba"], blk, PIPELINE)
     assert not torch.equal(blk, outs["fsr3-interp", "torch"])

@@ -16,6 +16,7 @@ from fgcli import pipeline as pl
 from fgcli.cli import cli
 from fgcli.errors import InputError
 from fgcli.frame import Camera, Frame
+from fgcli.kernels.contract import PIPELINE, check
 from fgcli.ops.gffe import (collect_background, estimate_positions, extrapolate_camera,
                             look_at, project, project_background, push_pull_fill,
                             render_window, track_history, unproject, warp_positions)
@@ -285,8 +286,8 @@ def test_a_still_camera_leaves_the_static_pixels_of_the_extrapolation_exact():
         far[5:15, :] = False  # the block's rows, its rim and its contact with the background
         assert (out["mv"][:, far] == 0).all()
         assert torch.equal(out["color"][:, far], frames[-1].color[:, far])
-    for k in ("color", "depth", "mv"):
-        assert torch.equal(got["torch"][k], got["numba"][k]), k
+    for k in ("color", "depth", "mv"):  # (the pipelines' contract: tests/test_kernels.py)
+        check(k, got["numba"][k], got["torch"][k], PIPELINE)
 
 
 def test_nearest_depth_wins_in_the_warp():

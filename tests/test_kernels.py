@@ -1,18 +1,14 @@
 """numba kernels (fgcli.kernels) against their torch reference (fgcli.ops and
-fgcli.kernels.reference): random inputs, the hard cases of docs/evaluation.md, whole
+fgcli.kernels.reference): random inputs, the docs/design.md section 5 hard cases, whole
 pipelines with --backend numba vs torch, the dispatch, and the CLI switch.
 
-Exactness. The kernels repeat the reference's float32 operations one by one, with a fused
-multiply-add exactly where torch's vectorised CPU kernels use one (add(alpha=), lerp,
-grid_sample's unnormalise and weighted sum), so on a torch build whose kernels use FMA
-(ATen CPU capability AVX2 or AVX512: every x86-64 machine of the last decade, and CI's
-ATEN_CPU_CAPABILITY=avx2 rerun) every output is bit-identical. With ATEN_CPU_CAPABILITY=
-default torch's scalar kernels round the product separately: outputs then agree within
-float32 rounding (rtol/atol 1e-5 on values; a rounding step at a pixel-centre boundary can
-move a splat target by one pixel, so up to 1 % of the elements may differ there).
-The one documented inexact spot: the blend's brightness difference uses a table for
-x^(1/2.4) where torch uses Sleef exp/log (both within ~1e-7), so a pixel whose B lies
-within 1e-5 of t_b may pick the other case of Eq. 1; such pixels are excluded.
+Exactness: each op's contract (fgcli.kernels.contract.CONTRACTS) says what must be equal
+on every CPU (decisions: masks, holes, integer vectors, keys, NaN / inf positions) and how
+close its floats must be (torch's vector kernels fuse some products that its plain ones
+round on their own). The comparisons below apply it, so they pass under any
+ATEN_CPU_CAPABILITY. Bit-for-bit checks remain where the contract is exact (integer
+arithmetic, correctly rounded float32 operations in the reference's order) and between two
+runs of the kernels themselves (in place or not, two threads or one, fused or not).
 """
 from __future__ import annotations
 
@@ -31,40 +27,64 @@ pytest.importorskip("numba")
 from fgcli import ops as R  # noqa: E402
 from fgcli.kernels import op, reference as RF, resolve  # noqa: E402
 from fgcli.kernels import ops as K  # noqa: E402
+from fgcli.kernels.contract import CONTRACTS, EXACT, PIPELINE, Contract, check  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-EXACT = torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX")
 INF, NAN = float("inf"), float("nan")
+C = CONTRACTS
+# a pipeline's frames as written (half floats): PIPELINE's differences may round to
+# neighbouring binary16 values, one half ulp apart (2**-10 relative)
+HALF_OUTPUT = Contract(ulp=1 << 13, rel=2.0 ** -10, why="PIPELINE, rounded to binary16")
 
 
-def same(name, a, b, loose_frac=0.01):
-    """Bit-identical (NaN == NaN) on FMA builds, else within float32 rounding."""
-    if a is None or b is None:
-        assert a is None and b is None, name
-        return
-    assert a.shape == b.shape and a.dtype == b.dtype, (name, a.shape, b.shape, a.dtype, b.dtype)
-    if a.dtype.is_floating_point:
-        eq = (a == b) | (a.isnan() & b.isnan())
-    else:
-        eq = a == b
-    if EXACT or bool(eq.all()):
-        assert bool(eq.all()), f"{name}: {int((~eq).sum())} of {eq.numel()} differ"
-        return
-    if a.dtype.is_floating_point:
-        eq |= torch.isclose(a, b, rtol=1e-5, atol=1e-5)
-    assert float((~eq).float().mean()) <= loose_frac, name
+def same(name, a, b, contract=EXACT, unsure=None):
+    """a (the kernel's) agrees with b (the reference's) under ``contract`` (exact by
+    default); unsure: elements excluded (the reference's decision within the bound of its
+    threshold there)."""
+    check(name, a, b, contract, unsure)
 
 
-def same_result(name, a, b):
-    if isinstance(a, R.SplatResult):
-        for f in ("to1", "to0", "depth", "valid", "source", "filled", "holes"):
-            same(f"{name}.{f}", getattr(a, f), getattr(b, f))
-        assert (a.alpha, a.mode) == (b.alpha, b.mode)
-    elif isinstance(a, tuple):
-        for i, (x, y) in enumerate(zip(a, b)):
-            same(f"{name}[{i}]", x, y)
-    else:
-        same(name, a, b)
+same_result = same
+
+
+def zero_signs_alike(name, a, b):
+    """Where the reference holds a zero, the kernel holds a zero of the same sign."""
+    z = b == 0
+    assert bool((a[z] == 0).all()) and torch.equal(a[z].signbit(), b[z].signbit()), name
+
+
+def test_every_kernel_op_declares_a_contract():
+    from fgcli.kernels import KERNEL_OPS
+
+    assert set(KERNEL_OPS) <= set(CONTRACTS), set(KERNEL_OPS) - set(CONTRACTS)
+    assert all(c.why for c in CONTRACTS.values())
+
+
+def test_the_contract_check_fails_where_it_should():
+    """Decisions exact, NaN / inf where the reference has them, floats within the bound
+    (per channel), unsure elements excluded, exact contracts value for value."""
+    from fgcli.kernels.contract import BILINEAR, LERP
+
+    ref = torch.tensor([[[1.0, 2.0, INF, NAN]], [[1e-3, 5.0, -1.0, 0.0]]])
+    ok = ref.clone()
+    ok[0, 0, 0] = torch.nextafter(ref[0, 0, 0], torch.tensor(9.0))  # 1 ulp
+    ok[1, 0, 3] = 1e-4  # within rel x the channel's range (5.0)
+    check("bound", ok, ref, BILINEAR)
+    for i, v in ((0, 1.01), (2, -INF), (3, 0.0)):  # beyond the bound; inf / NaN moved
+        bad = ref.clone()
+        bad[0, 0, i] = v
+        with pytest.raises(AssertionError):
+            check("moved", bad, ref, BILINEAR)
+    with pytest.raises(AssertionError):
+        check("2 ulp", ok * (1 + 2 ** -22), ref, LERP)
+    bad = ref.clone()
+    bad[0, 0, 0] = 3.0
+    check("unsure", bad, ref, BILINEAR, unsure=torch.tensor([[True, False, False, False]]))
+    with pytest.raises(AssertionError):
+        check("exact", ok, ref, EXACT)
+    with pytest.raises(AssertionError):  # a decision
+        check("mask", torch.tensor([True, False]), torch.tensor([True, True]), BILINEAR)
+    check("tree", (ref, None, {"a": ref > 1}), (ref.clone(), None, {"a": ref > 1}), EXACT)
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -82,7 +102,7 @@ def random_frames(h, w, seed=0, mv_scale=4.0):
 
 
 def hard_cases():
-    """docs/evaluation.md, hard cases: (name, frames)."""
+    """docs/design.md section 5: (name, frames)."""
     out = [("random 37x53", random_frames(37, 53)), ("1x1", random_frames(1, 1, 1)),
            ("1xN", random_frames(1, 17, 2)), ("Nx1", random_frames(13, 1, 3)),
            ("odd 7x13", random_frames(7, 13, 4)), ("fast 24x40", random_frames(24, 40, 5, 30.0))]
@@ -174,7 +194,7 @@ def test_splat_gap_fill_and_extrap_fill(name, f):
     for label, dd, mm, mv0, a, kw, d0 in _splats(f):
         rk = K.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
         rr = R.splat_motion(dd, mm, mv0, a, depth0=d0, **kw)
-        same_result(label, rk, rr)
+        same_result(label, rk, rr, C["splat_motion"])
         for thr in (0.01, 0.0, 1.0):
             same_result(f"{label} gap_fill {thr}", K.gap_fill(rr, thr),
                         R.gap_fill(rr, thr))
@@ -294,7 +314,8 @@ def test_splat_without_offsets_toward_frame0(name, f):
         part = R.splat_motion(dd, mm, mv0, a, mode=mode, toward0=False)
         assert part.to0 is None
         same_result(f"{mode} kernel splat", K.splat_motion(dd, mm, mv0, a, mode=mode,
-                                                          toward0=False), part)
+                                                          toward0=False), part,
+                    C["splat_motion"])
         stages = [("gap_fill", lambda r: R.gap_fill(r, 0.01), lambda r: K.gap_fill(r, 0.01)),
                   ("gap_fill mean", lambda r: R.gap_fill(r, 0.01, "mean"), None),
                   ("gap_fill fallback", lambda r: R.gap_fill(r, 0.01, "nearest", f["mv0"], f["d0"]),
@@ -356,10 +377,11 @@ def test_warp_frames(name, f):
     r = R.gap_fill(R.splat_motion(dd, mm, f["mv0"], 0.4), fallback_mv=f["mv0"],
                    fallback_depth=f["d0"])
     same_result("warp two", K.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0),
-                RF.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0))
+                RF.warp_frames(f["c1"], f["d1"], r.to1, f["c0"], f["d0"], r.to0),
+                C["warp_frames"])
     # raw, unsanitised offsets (NaN, inf, huge) straight from the vectors
     same_result("warp one, raw flow", K.warp_frames(f["c1"], f["d1"], f["mv1"]),
-                RF.warp_frames(f["c1"], f["d1"], f["mv1"]))
+                RF.warp_frames(f["c1"], f["d1"], f["mv1"]), C["warp_frames"])
 
 
 @pytest.mark.parametrize("name,f", CASES, ids=IDS)
@@ -367,7 +389,7 @@ def test_mv_warp(name, f):
     for mv, scale, raw in ((f["mv1"], 0.37, True), (f["mv1"], -0.63, True),
                            (f["mv0"], 0.5, False), (f["mv1"], 2.0, True)):
         same_result(f"mv_warp {scale}", K.mv_warp(f["c1"], f["d1"], mv, scale, raw_depth_flow=raw),
-                    RF.mv_warp(f["c1"], f["d1"], mv, scale, raw_depth_flow=raw))
+                    RF.mv_warp(f["c1"], f["d1"], mv, scale, raw_depth_flow=raw), C["mv_warp"])
 
 
 def _near_threshold(c0, c1, t_b):
@@ -392,20 +414,20 @@ def test_blend(name, f):
             for st in (None, r):
                 ck, dk = K.blend_eq1(s0, s1, sd0, sd1, v0, v1, dt, a, 0.02, 0.13, st)
                 cr, dr = RF.blend_eq1(s0, s1, sd0, sd1, v0, v1, dt, a, 0.02, 0.13, st)
-                same(f"blend a={a} color", ck.masked_fill(skip, 0), cr.masked_fill(skip, 0))
-                same(f"blend a={a} depth", dk.masked_fill(skip, 0), dr.masked_fill(skip, 0))
+                same(f"blend a={a} color", ck, cr, C["blend_eq1"], skip)
+                same(f"blend a={a} depth", dk, dr, C["blend_eq1"], skip)
     # the op-level signature with a given static mask, and colour only
     st = RF.static_mask(r)
-    same("blend_interp static", K.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3,
-                                                static=st).masked_fill(skip, 0),
-         R.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3, static=st).masked_fill(skip, 0))
+    same("blend_interp static", K.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3, static=st),
+         R.blend_interp(s0, s1, sd0, sd1, v0, v1, alpha=0.3, static=st), C["blend_interp"], skip)
 
 
 @pytest.mark.parametrize("name,f", CASES, ids=IDS)
 def test_crossfade(name, f):
     for a, ms in ((0.0, 0.0), (0.37, 0.37), (0.5, 0.25), (1.0, 0.5)):
         same_result(f"crossfade {a}", K.crossfade(f["c0"], f["c1"], f["d0"], f["d1"], f["mv1"], a, ms),
-                    RF.crossfade(f["c0"], f["c1"], f["d0"], f["d1"], f["mv1"], a, ms))
+                    RF.crossfade(f["c0"], f["c1"], f["d0"], f["d1"], f["mv1"], a, ms),
+                    C["crossfade"])
 
 
 def test_outputs_are_finite_on_hard_cases():
@@ -445,10 +467,9 @@ def test_pipelines_numba_equals_torch(name, mode, tiny_scene):
     for alpha in ((0.25, 0.5, 0.75) if mode == "interp" else (0.5,)):
         c_n, d_n, m_n = _pipeline_outputs(name, mode, "numba", f, alpha)
         c_t, d_t, m_t = _pipeline_outputs(name, mode, "torch", f, alpha)
-        skip = _near_threshold(c_n, c_t, -1.0)  # nothing: B >= 0 > -1
-        same(f"{name} color", c_n.masked_fill(skip, 0), c_t.masked_fill(skip, 0))
-        same(f"{name} depth", d_n, d_t)
-        same(f"{name} mv", m_n, m_t)
+        same(f"{name} color", c_n, c_t, PIPELINE)
+        same(f"{name} depth", d_n, d_t, PIPELINE)
+        same(f"{name} mv", m_n, m_t, PIPELINE)
 
 
 @pytest.mark.parametrize("h,w,levels,block,search,median", [
@@ -640,7 +661,8 @@ def test_warp_window_fetches_equal_the_gathers():
                                    ("linear", "interp", 0.7, True)):
             same_result(f"splat {h}x{w} {model}",
                         K.splat_motion(f["d1"], mv, flows[0], a, model, mode, toward0=t0),
-                        R.splat_motion(f["d1"], mv, flows[0], a, model, mode, toward0=t0))
+                        R.splat_motion(f["d1"], mv, flows[0], a, model, mode, toward0=t0),
+                        C["splat_motion"])
 
 
 @pytest.mark.parametrize("name,f", CASES + [("wide 45x96", random_frames(45, 96, 11)),
@@ -665,7 +687,7 @@ def test_warp_blend_fused_equals_the_two_stages(name, f):
                 if not HAVE_WINDOW16 or not flat_ok(*f["d1"].shape[-2:], 3):
                     assert got is None
                     continue
-                same_result(f"warp+blend a={a}", got, RF.warp_blend(*args))
+                same_result(f"warp+blend a={a}", got, RF.warp_blend(*args), C["warp_blend"])
     assert K.warp_blend(f["c1"][:2], f["d1"], r.to1, f["c0"][:2], f["d0"], r.to0) is None
 
 
@@ -691,7 +713,7 @@ def test_mob_fgsr_runs_warp_and_blend_fused():
         assert fused == (backend == "numba" and HAVE_WINDOW16), tm.stages
         assert ("warp" in tm.stages) == (not fused)
     for k in ("color", "depth", "mv"):
-        same(k, outs["numba"][k], outs["torch"][k])
+        same(k, outs["numba"][k], outs["torch"][k], PIPELINE)
 
 
 def test_window_fetch_intrinsics():
@@ -815,6 +837,34 @@ def _fsr3_inputs(h, w, seed):
         c1[2, 2, :3] = INF
         c1[:, 3, :2] = 0.0
     return c0, c1, v, d
+
+
+def _tap_on_huge_value(c0, c1, v, of, a):
+    """Pixels where a bilinear sample of the interpolation (either frame, game or flow
+    vectors) lies within the rounding of its position (a few ulp of a coordinate) of a
+    texel centre next to a huge or non-finite colour (|c| > 1e20). There one rounding of
+    the position gives that tap weight 0 and another a few ulp, which times 1e30 decides
+    the colour similarity and so the bias: a decision at its threshold (excluded)."""
+    from fgcli.ops._util import sanitize_mv
+
+    h, w = c0.shape[-2:]
+    eps = 16 * 2.0 ** -23 * 2 * max(h, w)
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64),
+                            torch.arange(w, dtype=torch.float64), indexing="ij")
+    out = torch.zeros(1, h, w, dtype=torch.bool)
+    for c, s in ((c0, a), (c1, -(1.0 - a))):
+        big = (~torch.isfinite(c) | (c.abs() > 1e20)).any(0, keepdim=True).float()
+        big = torch.nn.functional.max_pool2d(big[None], 3, 1, 1)[0] > 0
+        for f in (v, of):
+            if f is None:
+                continue
+            f = sanitize_mv(f).double() * s
+            px, py = xs + f[0], ys + f[1]
+            near = ((px - px.round()).abs() <= eps) | ((py - py.round()).abs() <= eps)
+            ix = px.round().clamp(0, w - 1).nan_to_num(0).long()
+            iy = py.round().clamp(0, h - 1).nan_to_num(0).long()
+            out |= near[None] & big[0][iy, ix][None]
+    return out
 
 
 def _kfield(*args):
@@ -1293,7 +1343,8 @@ def test_fsr3_masks_and_interpolation(h, w):
         same_result("masks", mk, fsr3.disocclusion_masks(d, dp, d.flip(-2), v, a, 1.4))
         for o in (None, of, v * 0, of_static):
             same_result(f"interp a={a}", K.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o),
-                        fsr3.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o))
+                        fsr3.interpolate_fsr3(c0, c1, v, mk[0], mk[1], a, o),
+                        C["interpolate_fsr3"], _tap_on_huge_value(c0, c1, v, o, a))
         d0 = d.flip(-1).clone()
         d0[0, :1] = NAN
         d0[0, 1:2, :3] = -1.0
@@ -1379,8 +1430,8 @@ def test_fill_packed_field_reads_every_half():
     for name, x in (("given", f), ("in place", view), ("uint32", f.to(torch.uint32)),
                     ("uint32 in place", u32)):
         k = K.fill_packed_field(x)
-        same_result(f"packed fill, {name}", k, r)
-        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32)), name  # -0.0
+        same_result(f"packed fill, {name}", k, r, C["fill_packed_field"])
+        zero_signs_alike(name, k[0], r[0])
         same_result(f"packed fill, {name} (reference)", fsr3.fill_packed_field(x), r)
 
 
@@ -1412,8 +1463,8 @@ def test_fill_packed_field(h, w):
         padded[:, 1:h + 1, 1:w + 1] = f.to(torch.uint32)
         for x in (f, f.to(torch.uint32), padded[:, 1:h + 1, 1:w + 1]):
             k = K.fill_packed_field(x)
-            same_result(f"packed fill ({name})", k, r)
-            assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32)), name
+            same_result(f"packed fill ({name})", k, r, C["fill_packed_field"])
+            zero_signs_alike(name, k[0], r[0])
         assert bool(r[1].all()) == (name == "no holes")
         assert bool(r[1].any()) == (name != "all holes")
 
@@ -1467,7 +1518,8 @@ def test_pyramid_level_and_fills(h, w):
     c0, c1, v, d = _fsr3_inputs(h, w, h + w)
     holes = torch.rand(1, h, w, generator=g) < 0.3
     holes[:, : max(1, h // 3), : max(1, w // 3)] = True  # a wide hole: coarse levels
-    same_result("inpaint", K.inpaint_color(c0, holes), fsr3.inpaint_color(c0, holes))
+    same_result("inpaint", K.inpaint_color(c0, holes), fsr3.inpaint_color(c0, holes),
+                C["inpaint_color"])
 
 
 def test_depth_priority_is_the_reference():
@@ -1608,8 +1660,8 @@ def test_pyramid_inpaint_dense_part(h, w, mode):
                           (v, wt, torch.ones(1, h, w, dtype=torch.bool))):
         k = K.pyramid_inpaint(vals, wgt, hl, mode=mode)
         r = pyramid.pyramid_inpaint(vals, wgt, hl, mode=mode)
-        same_result("pyramid_inpaint", k, r)
-        assert torch.equal(k[0].view(torch.int32), r[0].view(torch.int32))  # -0.0 too
+        same_result("pyramid_inpaint", k, r, C["pyramid_inpaint"])
+        zero_signs_alike("pyramid_inpaint", k[0], r[0])
 
 
 @pytest.mark.parametrize("h,w", [(37, 53), (1, 5), (64, 3)])
@@ -1638,7 +1690,8 @@ def test_inpaint_color_in_place(h, w):
                 if mark:
                     mark_scratch(x)
                 got = K.inpaint_color(x, hl, in_place=inp)
-                assert torch.equal(got.view(torch.int32), ref.view(torch.int32))  # -0.0 too
+                same("inpaint in place", got, ref, C["inpaint_color"])
+                zero_signs_alike("inpaint in place", got, ref)
                 if mark and inp:
                     assert got.data_ptr() == x.data_ptr()
                 else:
@@ -1676,7 +1729,8 @@ def test_inpaint_takes_the_interpolations_level1(h, w):
         with torch.inference_mode(change == "inference"):
             got = K.inpaint_color(kc, kh, in_place=True)
             want = fsr3.inpaint_color(rc, rh)
-        assert torch.equal(got.view(torch.int32), want.view(torch.int32)), change
+        same(f"inpaint of the interpolation, {change}", got, want, C["inpaint_color"])
+        zero_signs_alike(f"inpaint of the interpolation, {change}", got, want)
         assert got.data_ptr() == kc.data_ptr() or h * w == 1  # (in place; 1 x 1: reference)
 
 
@@ -1733,14 +1787,13 @@ def test_interpolate_backend_recorded(tmp_path):
         assert (run["kernel_load_ms"] is None) == (b == "torch")
         outs[b] = sorted(p.name for p in out.glob("*.exr"))
     assert outs["torch"] == outs["numba"] and outs["numba"]
-    if EXACT:
-        from fgcli.io.frames import read_frame
+    from fgcli.io.frames import read_frame
 
-        for name in outs["numba"]:
-            a = read_frame(str(tmp_path / "torch" / name), 1)
-            b = read_frame(str(tmp_path / "numba" / name), 1)
-            for k in ("color", "depth", "mv"):
-                assert torch.equal(getattr(a, k), getattr(b, k)), (name, k)
+    for name in outs["numba"]:
+        a = read_frame(str(tmp_path / "torch" / name), 1)
+        b = read_frame(str(tmp_path / "numba" / name), 1)
+        for k in ("color", "depth", "mv"):
+            same(f"{name} {k}", getattr(b, k), getattr(a, k), HALF_OUTPUT)
 
 
 def test_wide_vectors_are_set_before_the_first_kernel_is_compiled():

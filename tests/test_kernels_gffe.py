@@ -1,11 +1,12 @@
 """gffe's camera geometry kernels (fgcli.kernels.geom via fgcli.kernels.ops.unproject /
-project): bit-identical to the torch functions of fgcli.ops.gffe on random cameras and the
-hard cases, the gffe ops with the kernels (``geom``) against the reference, and the whole
+project) against the torch functions of fgcli.ops.gffe on random cameras and the hard
+cases, the gffe ops with the kernels (``geom``) against the reference, and the whole
 gffe-extrap pipeline with --backend numba against torch.
 
-The kernels use only float32 multiplications, additions and divisions (correctly rounded on
-every CPU) and torch's own sqrt for the sky, so these comparisons are exact on every build
-(no ATEN_CPU_CAPABILITY=default allowance as in tests/test_kernels.py)."""
+The geometry uses only float32 multiplications, additions and divisions (correctly rounded
+on every CPU) and torch's own sqrt for the sky: its contract is exact, compared bit for
+bit. The fused ops that sample bilinearly or fill from pyramids compare under their
+contracts (fgcli.kernels.contract), on every CPU."""
 from __future__ import annotations
 
 import math
@@ -19,6 +20,7 @@ pytest.importorskip("numba")
 
 from fgcli.kernels import ops as K  # noqa: E402
 from fgcli.ops import gffe as G  # noqa: E402
+from fgcli.kernels.contract import CONTRACTS, PIPELINE, check  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INF, NAN = float("inf"), float("nan")
@@ -414,30 +416,10 @@ def test_gffe_extrap_numba_equals_torch(orbit_frames, name, monkeypatch):
 
 # ----------------------------------------------------------------------------- fused ops
 
-# fgcli.kernels.gffe's fused ops: bit-identical on FMA builds (their bilinear reads and the
-# splat / gap-fill kernels follow ATen's vectorised FMA arithmetic), within float32
-# rounding on ATEN_CPU_CAPABILITY=default builds (tests/test_kernels.py's rule)
-EXACT = torch.backends.cpu.get_cpu_capability() not in ("DEFAULT", "NO AVX")
-
-
-def close_tree(name, a, b):
-    if isinstance(a, torch.Tensor) and not EXACT and a.dtype.is_floating_point:
-        # float32 rounding of a product taken apart or fused: relative 1e-5 (a few ulps
-        # of the values' scale, 1e-6 measured on the orbit pipeline); a discrete decision
-        # at a rounding boundary (a splat target, a depth test) may flip: up to 1 % of the
-        # elements, and at least one
-        assert a.shape == b.shape and a.dtype == b.dtype, name
-        eq = (a == b) | torch.isclose(a, b, rtol=1e-5, atol=1e-5) | (a.isnan() & b.isnan())
-        bad = int((~eq).sum())
-        assert bad <= max(1, 0.01 * eq.numel()), f"{name}: {bad} of {eq.numel()} differ"
-    elif isinstance(a, (tuple, list)):
-        for i, (x, y) in enumerate(zip(a, b)):
-            close_tree(f"{name}[{i}]", x, y)
-    elif isinstance(a, dict):
-        for k in a:
-            close_tree(f"{name}.{k}", a[k], b[k])
-    else:
-        same_tree(name, a, b)
+def close_tree(name, a, b, contract=PIPELINE):
+    """The kernels' result a agrees with the reference's b under ``contract`` (the fused
+    ops': their CONTRACTS entry; whole pipelines: PIPELINE)."""
+    check(name, a, b, contract)
 
 
 def _hard_frames(h, w, seed):
@@ -500,7 +482,8 @@ def test_fused_gffe_ops_match_the_reference(h, w):
         cases.append(("vector_rule_fill", (f["ch"], v, f["dh"], f["mh"], f["ch"], f["dh"],
                                            f["mh"], a)))
     for name, args in cases:
-        close_tree(f"{name} {h}x{w}", getattr(K, name)(*args), getattr(G, name)(*args))
+        close_tree(f"{name} {h}x{w}", getattr(K, name)(*args), getattr(G, name)(*args),
+                   CONTRACTS[name])
 
 
 @pytest.mark.parametrize("h,w", [(37, 45), (64, 64), (33, 100), (70, 9), (9, 70)])
@@ -584,14 +567,14 @@ def test_sample_where_skips_unselected_runs(h, w):
             warped, _ = backward_warp(img, fl, "bilinear")
             ref = torch.where(sel, warped, b if b is not None else torch.zeros(()))
             fref = torch.where(sel, fl, fb if fb is not None else torch.zeros(()))
-            close_tree(f"sample_where {h}x{w}", out, ref)
+            close_tree(f"sample_where {h}x{w}", out, ref, CONTRACTS["warp_frames"])
             bits_equal(f"sample_where flow {h}x{w}", fout, fref)
             if b is not None:  # the fills' form: into their own base, no flow
                 own = b.clone()
                 o2, f2 = _sample_where(img, fl, sel[0], base=own, flow_out=False,
                                        in_place=True)
                 assert o2 is own and f2 is None
-                close_tree(f"sample_where in place {h}x{w}", o2, ref)
+                close_tree(f"sample_where in place {h}x{w}", o2, ref, CONTRACTS["warp_frames"])
 
 
 @pytest.mark.parametrize("h,w", [(1, 1), (7, 1), (9, 14), (33, 51), (15, 200)])
@@ -803,7 +786,7 @@ def test_fill_holes_matches_the_reference(h, w):
             c1, cx = (f["cam1"], f["cam_x"]) if cams else (None, None)
             args = (col, dep, mv, v, fb, mode, off, True, f["ch"], f["dh"], c1, cx, bd)
             close_tree(f"fill_holes {h}x{w} {fb} {mode} {off} {bd is not None} {cams}",
-                      K.fill_holes(*args), G.fill_holes(*args))
+                      K.fill_holes(*args), G.fill_holes(*args), CONTRACTS["fill_holes"])
 
 
 @pytest.mark.parametrize("h,w,sc", [(1, 1, 1.0), (9, 14, 1.0), (33, 51, 1.0), (33, 51, 2.0)])
@@ -871,17 +854,17 @@ def test_hole_fills_in_place_write_scratch_only(h, w):
     for i, (c, d, m, v) in enumerate(frames):
         calls = {
             "vector_rule_fill": (lambda c, d, m: (c, v, d, m, f["ch"], f["dh"], f["mh"], 1.5),
-                                 same_tree, 3),
+                                 3),
             "background_fill": (lambda c, d, m: (c, d, m, v, layers, f["cam1"], f["cam_x"],
                                                  "bilinear", f["ch"], f["dh"], f["mh"], 0.5,
-                                                 True, True), same_tree, 3),
+                                                 True, True), 3),
             "fill_holes": (lambda c, d, m: (c, d, m, v, 0.1, "reproject", "clamp", True,
-                                            f["ch"], f["dh"], f["cam1"], f["cam_x"], None),
-                           close_tree, 3),
-            "push_pull_fill": (lambda c, d, m: (c, v, d, 0.1), close_tree, 2)}
-        for name, (args, cmp, n) in calls.items():
+                                            f["ch"], f["dh"], f["cam1"], f["cam_x"], None), 3),
+            "push_pull_fill": (lambda c, d, m: (c, v, d, 0.1), 2)}
+        for name, (args, n) in calls.items():
             base = getattr(K, name)(*args(*[x.clone() for x in (c, d, m)]))
-            cmp(f"{name} {h}x{w} {i} reference", base, getattr(G, name)(*args(c, d, m)))
+            close_tree(f"{name} {h}x{w} {i} reference", base, getattr(G, name)(*args(c, d, m)),
+                       CONTRACTS[name])
             for marked in (True, False):
                 for inp in (True, False):
                     planes = [x.clone() for x in (c, d, m)]

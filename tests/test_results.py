@@ -1,7 +1,7 @@
 """The claims of docs/results.md, checked on the bundled scenes with `fgen eval` itself:
 for interpolation mob-fgsr beats mv-warp and mv-warp beats blend (PSNR and LDR-FLIP) on the
 scenes with motion; for extrapolation mob-fgsr beats repeat and mv-warp. The lighting-only
-scene (`shadows`) is where every MV method reduces to a blend (docs/evaluation.md)."""
+scene (`shadows`) is where every MV method reduces to a blend (docs/design.md section 4)."""
 from __future__ import annotations
 
 import json

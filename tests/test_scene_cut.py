@@ -1,4 +1,4 @@
-"""Camera cuts (docs/evaluation.md, hard cases): detected, never smeared; suspicious depth warned."""
+"""Camera cuts (docs/design.md section 5): detected, never smeared; suspicious depth warned."""
 from __future__ import annotations
 
 import os

@@ -1,4 +1,4 @@
-"""Property tests over the hard cases of docs/evaluation.md, for every pipeline (and so
+"""Property tests over the hard cases of docs/design.md section 5, for every pipeline (and so
 every registered stage) in every mode: finite output, shapes kept, zero motion returns the
 input frame exactly, alpha -> 0 and -> 1 approach the endpoint frames."""
 from __future__ import annotations

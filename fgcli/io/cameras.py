@@ -1,6 +1,6 @@
 """Cameras: the internal Camera (OpenGL conventions) from and to EXR header attributes.
 
-Internal (fgcli.frame.Camera, docs/conventions.md): row-major 4x4 matrices applied to column
+Internal (fgcli.frame.Camera, docs/design.md section 2): row-major 4x4 matrices applied to column
 vectors; `world_to_camera` maps world to view space where the camera looks down -Z with +Y
 up and +X right; `projection` maps view space to clip space, NDC = clip.xyz / clip.w in
 [-1, 1] with x right and y up.

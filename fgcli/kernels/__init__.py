@@ -5,8 +5,9 @@ fgcli.kernels.reference) are the reference implementation and the CUDA path. Wit
 ``--backend numba`` (the default ``auto`` on CPU) a stage asks ``op(name, ctx)`` for the
 implementation of an op and gets the numba kernel of fgcli.kernels.ops instead; kernels
 fall back to the reference themselves for option combinations they do not implement
-(batched tensors, fill='mean', catmull-rom, ...). Results are bit-identical to the
-reference except where a comment in the kernel says otherwise (tests/test_kernels.py).
+(batched tensors, fill='mean', catmull-rom, ...). Each op's results agree with the
+reference as its contract says (fgcli.kernels.contract: decisions exact, floats within a
+stated bound; docs/design.md section 7).
 
 Importing this package does not import numba or torch (``fgen --help`` stays fast).
 """
@@ -71,8 +72,8 @@ def numba_available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
-# What `auto` picks on the CPU: the kernels (bit-identical to the torch ops on FMA builds,
-# 2-3x faster per 1080p frame; docs/performance.md) for frames of at least AUTO_MIN_PIXELS.
+# What `auto` picks on the CPU: the kernels (the torch ops' results within each op's
+# contract, 2-10x faster per 1080p frame; docs/performance.md) for frames of at least AUTO_MIN_PIXELS.
 # A fresh install compiles them once into numba's on-disk cache (1-3 minutes on 2
 # cores); later processes load them in < 1 s. Below that size torch eager costs a few ms
 # per frame, so the one-time compilation would not pay for itself: auto stays torch there

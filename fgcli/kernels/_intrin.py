@@ -261,8 +261,8 @@ def _vmin16_whole(builder, b, a):
 # buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no NaN in either: the
 # caller's values are sanitised depths). As a select of the loaded values LLVM stores it
 # with masked stores (vmaskmovps: the lanes where src is smaller), which stall the loads
-# of the next overlapping minima on Zen 3 (depth_scatter_pair: 14.9 -> 10.4 ms per 1080p
-# pair with AVX's vminps and whole stores, in one process); without AVX the select.
+# of the next overlapping minima on Zen 3 (depth_scatter_pair 1.4x faster with AVX's
+# vminps and whole stores); without AVX the select.
 _vmin16 = _vmin16_whole if "+avx" in _FEATURES else _fmin_s
 fmin16 = _lanes16(types.float32, ir.FloatType(), lambda bd, a, b: _vmin16(bd, b, a),
                   "buf[q:q + 16] = min(buf[q:q + 16], src[j:j + 16]) (float32 arrays, no "
@@ -435,7 +435,7 @@ def sad_search8(typingctx, win, woff, wstride, cur, coff, cstride, order):
     4-byte half) and two adds give the 16 SADs (exact: at most 8 * 8 * 255 < 2**16); each
     window row and block row is loaded once; the keys' running element-wise minimum stays
     in a register and one horizontal minimum ends it. With AVX2 (HAVE_AVX2) two block
-    rows per instruction (1080p level: 5.4 -> 2.6 ms), else SSE4.1's (sad_search8_sse41).
+    rows per instruction (2x faster), else SSE4.1's (sad_search8_sse41).
     x86 only: use when HAVE_MPSADBW."""
     if not _sad_search_typing(win, cur, order):
         return None
@@ -949,7 +949,7 @@ def lut16(typingctx, tab, I, j, out):
     Why: LLVM's cost model for this machine (Zen 3: no fast gathers) vectorises a loop of
     table reads with each lane's index moved to a scalar register and loaded alone
     (vpextrd / vpinsrd, ~14 cycles a pixel); the step tables' lookups (luma8, the depth
-    priority) through this: luma8_u8_plane_kernel 4.1 -> 2.5 ms at 1080p, Zen 3."""
+    priority) through this: luma8_u8_plane_kernel 1.6x faster on Zen 3."""
     if not (_i32_arrays(tab, I, out) and all(a.ndim == 1 for a in (tab, I, out))
             and isinstance(j, types.Integer)):
         return None

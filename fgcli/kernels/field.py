@@ -223,8 +223,8 @@ def field_scatter_kernel(pos, key0, key1, h, w, thr, buf0, buf1):
     16 sources in a row continue each other's footprints one texel to the right (smooth
     motion: the same tap offsets, consecutive base texels) their four taps are four
     16-lane maxima (fgcli.kernels._intrin.umax16; max does not depend on the order of
-    writes): 8.7 -> 7 ms on the benchmark's scene, no change on footage with large,
-    varied motion (/tmp/nuke8: 16-20 ms either way, the footprint pass itself ~9).
+    writes): ~20 % less time on the benchmark's scene, no change on footage with large,
+    varied motion.
 
     Two kernels (this one, then field_walk_kernel), not two prange loops in one: numba
     fuses consecutive parallel loops of the same length, which would run a walk before
@@ -469,7 +469,7 @@ def _depth_rank(dv, tab, b0, sh, n1, bottom):
     lookup (step_code: packed_steps(depth_priority_table), one int32 gather): 1023 - the
     step; depth 0 -> 1023. int32 arithmetic (d >= 0: its bits are too; step is 1..1023):
     16-lane gathers, and a float -> int32 conversion, which AVX2 has (float -> int64
-    needs AVX-512; LLVM made the loop scalar for it: 1080p, Zen 3, 4.2 -> 3.5 ms)."""
+    needs AVX-512; LLVM made the loop scalar for it: ~1.2x slower on Zen 3)."""
     v = sdepth_b(dv)
     return _rank_of(step_code(v, tab, b0, sh, n1, bottom), v > F32(0.0))
 
@@ -841,8 +841,7 @@ def field_scatter_prio_kernel(vec, prio, a1, thr, buf0, buf1):
     together do not overlap), and defers the others to a last pass, one component per
     thread (_scatter_one). The maximum does not depend on the order of writes, so the
     result is the same. (One component per thread over the whole frame worked out every
-    footprint twice and used two threads at most: 1080p blade, Zen 3, captured inputs,
-    8.53 -> 8.04 ms for the bands alone; docs/performance.md, stop 52.) A row of zero
+    footprint twice and used two threads at most.) A row of zero
     vectors (the static parts of a frame) writes each source into its own texel, as
     field_scatter_block_kernel's rows of still blocks."""
     h, w = prio.shape

@@ -39,7 +39,7 @@ def _sads16(wb, cb, dy):
     block and search sizes): one accumulator per dx, each window element loaded once per
     (r, c) for all sixteen, which LLVM packs into one 512-bit register. Written out: an
     accumulator array lives in memory and was no faster than _sad8 per offset; the
-    sixteen named sums are 1.35x faster (1080p level, 105 -> 79 ms, equal vectors)."""
+    sixteen named sums are 1.35x faster (equal vectors)."""
     a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = F32(0.0)
     a8 = a9 = a10 = a11 = a12 = a13 = a14 = a15 = F32(0.0)
     for r in range(8):

@@ -1018,7 +1018,7 @@ def scene_change_score_tensor(c0, c1, bins=32, regions=3, stride=None, levels=Tr
     (fgcli.kernels.scene): the same score, bit for bit. The gamma levels by
     scene_bins_kernel's tables (_scene_levels: one pass, no pow), or where those leave a
     sample open, or with levels False, by the reference's own torch pow of the sampled
-    luma (scene_luma_kernel, then scene_counts_kernel): 1.19 -> 0.66 ms per 1080p pair."""
+    luma (scene_luma_kernel, then scene_counts_kernel): 1.8x faster."""
     from fgcli.ops import scene as SC
 
     if not _cpu(c0, c1) or not isinstance(bins, int) or not isinstance(regions, int) or \
@@ -2302,10 +2302,9 @@ def push_pull_fill(color, valid, depth=None, far_bias=0.1, tile_k=PP_TILE_K, in_
     push-pull kernels of fgcli.kernels.gffe, one pass per level and direction; or, when
     every aligned 2**tile_k tile with a hole has a valid pixel and a valid finite depth
     (and the frame is larger than a tile), the pyramids of those tiles alone
-    (pp_tiles_kernel: the same values; 12.4 -> 4.3 ms on the benchmark's blade frame,
-    7 holes in 2 of 2,040 tiles). Frames whose holes reach a tile without a valid finite
-    depth (a border strip of a moving camera, sky) take the frame's pyramid after the
-    0.3-0.5 ms scan. in_place: on the tile path, where color and depth are scratch
+    (pp_tiles_kernel: the same values; ~3x faster where few tiles have holes). Frames
+    whose holes reach a tile without a valid finite depth (a border strip of a moving
+    camera, sky) take the frame's pyramid after the scan. in_place: on the tile path, where color and depth are scratch
     (fgcli.ops._util), the holes are written into them (the results are they)."""
     ok = (_f32cpu(color) and color.shape[0] == 3 and color.shape[1] * color.shape[2] > 1
           and _f32cpu(depth) and tuple(depth.shape) == (1,) + tuple(color.shape[1:])

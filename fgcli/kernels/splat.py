@@ -252,7 +252,7 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
     """Scatter: the minimum of packed keys ``depth bits << 32 | y << 16 | x`` into buf,
     (H+2)*(W+2) with an off-screen ring (the (y, x) packing orders like the flat index);
     quadratic: every source's displacement into disp (2, H, W; stored as pairs, (H, W, 2),
-    the loop was not vectorised: 8 -> 18 ms). splat_resolve_kernel then reads the winners.
+    the loop was not vectorised: 2x slower). splat_resolve_kernel then reads the winners.
     Widths and heights are below 65536 and 2 H W < 2**31 (the wrapper checks).
 
     Scatter without atomics where no other thread can write: the source rows are cut into
@@ -266,8 +266,7 @@ def splat_kernel(depth1, mv1, mv0, depth0, ca, cb, quad, use_d0, tol, buf, disp)
     in a vectorised loop (32-bit: 8 lanes on AVX2, where int64 targets and keys held it at
     4), the scatter loop composes the keys; quadratic, with the 16-lane fetches
     (WINDOW16), frame 0's vectors and depths at p1 + a are fetched 16 sources at a time
-    (fetch16x2, nearest16; LLVM leaves a loop with gathers scalar). Captured 1080p
-    inputs, one process, against 1b20d30: quadratic 12.4 -> 9.2 ms, linear 6.7 -> 4.5.
+    (fetch16x2, nearest16; LLVM leaves a loop with gathers scalar).
     A row whose sources all land on their own pixels (zero or sub-pixel displacements: the
     static parts of a frame) takes its minima as one vectorised pass over its own texels
     (within the band's zone; no two sources of the row share a target)."""

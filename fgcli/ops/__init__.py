@@ -1,8 +1,8 @@
-"""Pure tensor functions shared by the stages (README.md, Code).
+"""Pure tensor functions shared by the stages (docs/design.md section 3).
 
 Every function takes and returns torch float32 channel-first tensors, (C, H, W) per
 frame and (B, C, H, W) batched, documents its shapes, never modifies its inputs, and
-returns finite values for the hard cases of docs/evaluation.md. Conventions: pixel
+returns finite values for the hard cases of docs/design.md section 5. Conventions: pixel
 centres at integer + 0.5, x right, y down; depth linear (> 0, +inf sky); mv from frame t
 to frame t-1 in pixels (``prev_xy = xy + mv``).
 

@@ -1,6 +1,6 @@
 """Shared helpers for the pure tensor ops: input checks, pixel grids, sanitising, batching.
 
-Conventions (docs/conventions.md): torch float32, channel-first. A per-frame tensor is
+Conventions (docs/design.md section 2): torch float32, channel-first. A per-frame tensor is
 (C, H, W); a batch is (B, C, H, W). Pixel centres sit at integer + 0.5 in *pixel
 coordinates*; inside the ops we work in *index coordinates* (pixel centre of column x is
 x), which differ by a constant 0.5 and so leave every displacement unchanged.

@@ -78,7 +78,7 @@ DISPLAY_TRANSFORMS = ("srgb", "mulaw", "none")
 
 def to_display(x, transform: str = "srgb", mu: float = 5000.0, peak: float = 1.0):
     """Display-referred colour for metrics: 'srgb' (sRGB OETF of clip(x, 0, 1), the
-    default of docs/evaluation.md), 'mulaw' (see mulaw) or 'none' (x as is, assumed
+    default of docs/design.md section 4), 'mulaw' (see mulaw) or 'none' (x as is, assumed
     already display-referred in [0, 1]; only NaN/inf are cleaned)."""
     if transform == "srgb":
         return srgb_oetf(x)

@@ -1,4 +1,4 @@
-"""Image-quality metrics for `fgen eval` (docs/evaluation.md).
+"""Image-quality metrics for `fgen eval` (docs/design.md section 4).
 
 Inputs: torch tensors or numpy arrays, (3, H, W) *linear* scene-referred colour (the frame
 model's ``color``); PSNR, SSIM and LDR-FLIP first map it to display-referred colour

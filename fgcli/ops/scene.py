@@ -91,7 +91,7 @@ def scene_change_score_tensor(c0: torch.Tensor, c1: torch.Tensor, bins: int = 32
     check_same(c0, "c0", (c1, "c1"))
     s = score_stride(*c0.shape[-2:], regions, stride)
     # both frames in one batch: the subsampled frames are small, so per-op overhead
-    # dominates (one pass over the pair: 2.4 -> 1.7 ms at 1080p)
+    # dominates (one pass over the pair: 1.4x faster than two)
     h0, h1 = _histograms(torch.stack((c0[:, ::s, ::s], c1[:, ::s, ::s])), bins, regions)
     return kl_score(h0, h1)
 

@@ -8,7 +8,7 @@ is x); displacements are the same in pixel coordinates.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
 import torch
 
@@ -125,7 +125,7 @@ class SplatResult:
     mode: str
     filled: torch.Tensor | None = None
     holes: torch.Tensor | None = None
-    scratch: bool = False
+    scratch: bool = field(default=False, compare=False)  # (ownership, not a value)
 
     def replace(self, **kw) -> "SplatResult":
         kw.setdefault("scratch", False)

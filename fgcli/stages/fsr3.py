@@ -132,8 +132,7 @@ class FSR3OpticalFlow(Stage):
         Option("field", "choice", "pixel", "block = the vector field at the flow's "
                "resolution, one texel per 8x8 block, sampled bilinearly per pixel (the "
                "FidelityFX SDK's); pixel = the flow upsampled to pixels, a field per pixel "
-               "with its holes filled from a mip pyramid (fgen before stop 27; flow=dis "
-               "always)", choices=("block", "pixel")),
+               "with its holes filled from a mip pyramid (flow=dis always)", choices=("block", "pixel")),
         Option("smooth", "bool", True, "field=block: the SDK's 3x3 filter of the block "
                "vectors before the field (weighted by length and agreement with the "
                "neighbours' mean)"),
