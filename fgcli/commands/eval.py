@@ -54,7 +54,7 @@ from fgcli.io.options import input_options
 def cmd(in_dirs, gt_dir, factor, pipelines, variants, mode, scale, json_out, report_dir, repeat,
         device, region, backend, no_hdr_flip, no_progress, threads, executor, scheduler, workers,
         scene_cuts, cut_threshold, **in_kw):
-    """Score pipelines against ground truth (the protocol: docs/evaluation.md; design: docs/design.md section 4).
+    """Score pipelines against ground truth (the protocol: docs/evaluation.md).
 
     \b
     fgen eval IN --gt GT       IN = rendered input, GT = reference frames between/after
