@@ -84,8 +84,9 @@ def backend_option(f):
     return click.option("--backend", type=click.Choice(["auto", "torch", "numba"]),
                         default="auto", show_default=True,
                         help="Per-pixel kernels: numba (compiled CPU kernels), torch (the "
-                             "reference ops; the CUDA path); auto = torch until the "
-                             "kernels are faster (docs/performance.md).")(f)
+                             "reference ops; the CUDA path); auto = numba on the CPU for "
+                             "frames of 0.5 Mpx and up, torch below that and on CUDA "
+                             "(docs/performance.md).")(f)
 
 
 def scene_cut_options(f):

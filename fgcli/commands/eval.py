@@ -43,8 +43,8 @@ from fgcli.io.options import input_options
 @click.option("--backend", type=click.Choice(["auto", "torch", "numba"]), default="auto",
               show_default=True,
               help="Per-pixel kernels: numba (compiled CPU kernels), torch (reference ops, "
-                   "the CUDA path); auto = torch until the kernels are faster "
-                   "(docs/performance.md).")
+                   "the CUDA path); auto = numba on the CPU for frames of 0.5 Mpx and up, "
+                   "torch below that and on CUDA (docs/performance.md).")
 @click.option("--no-hdr-flip", is_flag=True, help="Skip HDR-FLIP (the slowest metric).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @threads_option
