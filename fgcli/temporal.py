@@ -56,8 +56,6 @@ class TemporalChange:
         return disp, ~occluded
 
     def add(self, n: int, out, gt_color, gt) -> None:
-        import torch
-
         from fgcli.ops import backward_warp
         from fgcli.ops.color import srgb_oetf
 

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 import torch
 
-from fgcli.cli import main
 from fgcli.errors import EXIT_BAD_INPUT, EXIT_OUTPUT, EXIT_USAGE
 from fgcli.frame import Frame
 from fgcli.io import exr, layouts
@@ -23,12 +22,7 @@ from fgcli.io.reader import SequenceReader
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def fgen(capsys, *args):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err
-    return e.value.code, cap.out, cap.err
+from tests._cli import fgen  # noqa: E402
 
 
 def scene_seq(folder, tiny_scene, n=3, layout="fgen", start=1, name="shot.{:04d}.exr",

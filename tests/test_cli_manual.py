@@ -21,12 +21,7 @@ from fgcli.io.reader import SequenceReader
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def fgen(capsys, *args):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err
-    return e.value.code, cap.out, cap.err
+from tests._cli import fgen  # noqa: E402
 
 
 def _frame(t, scale=1.0):

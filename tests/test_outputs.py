@@ -10,19 +10,13 @@ import os
 import numpy as np
 import pytest
 
-from fgcli.cli import main
 from fgcli.io.reader import SequenceReader
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ORBIT = os.path.join(ROOT, "sample_data", "scenes", "orbit.toml")
 
 
-def fgen(capsys, *args):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err
-    return e.value.code, cap.out, cap.err
+from tests._cli import fgen  # noqa: E402
 
 
 @pytest.fixture(scope="module")

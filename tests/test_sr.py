@@ -22,14 +22,7 @@ SAMPLES = os.path.join(ROOT, "sample_data")
 # Halton(2, 3) - 0.5: the jitter sequence of `fgen synth --jitter` (and of most engines)
 
 
-def _halton(i, b):
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= b
-        r += f * (i % b)
-        i //= b
-    return r
-
+from fgcli.synth.tracer import _halton  # noqa: E402
 
 JITTERS = [(_halton(k, 2) - 0.5, _halton(k, 3) - 0.5) for k in range(1, 17)]
 
@@ -364,8 +357,6 @@ def _without_jitter(src, dst):
 
 def test_input_without_jitter_is_a_warning_not_an_error(lowres, tmp_path):
     """Frames without jitter metadata are scored as jitter 0, with a warning."""
-    from fgcli.io import exr
-
     plain = _without_jitter(lowres / "lowres", tmp_path / "plain")
     r = _run(["eval", str(plain), "--gt", str(lowres / "gt"), "--scale", "2", "--pipeline",
               "upscale", "--no-hdr-flip", "--no-progress"])

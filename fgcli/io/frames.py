@@ -88,19 +88,30 @@ def read_frame(path: str, number: int, layout=None, view: str | None = None,
     return lay.read(header, number, view=view, fields=fields)
 
 
+def _sidecar_entries(folder: str):
+    """(path, its "frames" entries) of `cameras.json` in `folder`; (path, None) when there
+    is none. InputError naming the file when it does not parse."""
+    p = os.path.join(str(folder), "cameras.json")
+    if not os.path.isfile(p):
+        return p, None
+    try:
+        with open(p) as fh:
+            return p, list(json.load(fh)["frames"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"bad cameras.json: {e}", file=p) from None
+
+
 def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
     """Cameras from `cameras.json` in `folder` ({} when there is none). Format:
     {"frames": [{"frame": 12, "world_to_camera": [[4x4]], "projection": [[4x4]]}, ...]},
     row-major, column vectors, OpenGL camera (-Z forward, +Y up), NDC y up; other keys
     are ignored."""
-    p = os.path.join(str(folder), "cameras.json")
-    if not os.path.isfile(p):
+    p, entries = _sidecar_entries(folder)
+    if entries is None:
         return {}
     try:
-        with open(p) as fh:
-            data = json.load(fh)
         cams = {}
-        for e in data["frames"]:
+        for e in entries:
             if "world_to_camera" not in e and "projection" not in e:
                 continue  # an entry with other facts only (jitter_px)
             w2c = np.asarray(e["world_to_camera"], dtype=np.float64)
@@ -111,7 +122,7 @@ def load_sidecar_cameras(folder: str) -> dict[int, Camera]:
                 raise ValueError(f"frame {e['frame']}: non-finite matrix values")
             cams[int(e["frame"])] = Camera(w2c, proj)
         return cams
-    except (OSError, ValueError, KeyError, TypeError) as e:
+    except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"bad cameras.json: {e}", file=p) from None
 
 
@@ -119,14 +130,12 @@ def load_sidecar_jitter(folder: str) -> dict[int, tuple[float, float]]:
     """Per-frame sub-pixel jitter from `cameras.json` ({} when none): entries
     {"frame": 12, "jitter_px": [jx, jy]} in input pixels, x right, y down (pixel (col, row)
     was sampled at (col + 0.5 + jx, row + 0.5 + jy) of the unjittered grid)."""
-    p = os.path.join(str(folder), "cameras.json")
-    if not os.path.isfile(p):
+    p, entries = _sidecar_entries(folder)
+    if entries is None:
         return {}
     try:
-        with open(p) as fh:
-            data = json.load(fh)
         out = {}
-        for e in data.get("frames", []):
+        for e in entries:
             if "jitter_px" not in e:
                 continue
             j = [float(v) for v in e["jitter_px"]]
@@ -134,7 +143,7 @@ def load_sidecar_jitter(folder: str) -> dict[int, tuple[float, float]]:
                 raise ValueError(f"frame {e['frame']}: jitter_px must be two finite numbers")
             out[int(e["frame"])] = (j[0], j[1])
         return out
-    except (OSError, ValueError, KeyError, TypeError) as e:
+    except (ValueError, KeyError, TypeError) as e:
         raise InputError(f"bad cameras.json: {e}", file=p) from None
 
 
