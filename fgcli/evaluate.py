@@ -309,7 +309,8 @@ def evaluate(src, pipelines: list, mode: str, progress: bool = True, device: str
     states = {id(b[1]): RunState() for b in built}  # recurrent state per pipeline
     from fgcli.temporal import TemporalChange, step_frames_of
 
-    tchange = {id(b[1]): TemporalChange(step_frames_of(src)) for b in built}
+    steps, chains = step_frames_of(src), {}
+    tchange = {id(b[1]): TemporalChange(steps, chains=chains) for b in built}
     holes: dict = {}  # pipeline -> [unfilled pixels, pixels] (gffe_hole_fill)
     worst: dict = {}
     compare = None  # the frame every pipeline found hardest, all outputs (--report)

@@ -633,6 +633,10 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
         writer.close()
     bar.close()
     reader.warn_nonfinite()
+    if rec is not None:
+        from fgcli.sr import warn_no_jitter
+
+        warn_no_jitter(rec.no_jitter, reader.folder)
     summary = {"pipeline": pinfo, "mode": mode, "alphas": [str(t) for t in times],
                "input": reader.folder, "input_frames": numbers, "timeline_scale": m,
                "numbering": numbering, "numbering_note": plan.get("note"),

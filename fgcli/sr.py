@@ -53,19 +53,11 @@ def frame_jitter(f: Frame) -> tuple[float, float] | None:
     return None
 
 
-def check_scale(scale) -> int:
-    try:
-        s = int(scale)
-    except (TypeError, ValueError):
-        raise UsageError(f"--scale must be a whole number >= 1 (got {scale!r})") from None
-    if s != scale or s < 1 or s > 8:
-        raise UsageError(f"--scale must be a whole number from 1 to 8 (got {scale})")
-    return s
-
-
-def upscale_frame(f: Frame, scale: int, color=None, jitter=None) -> Frame:
+def upscale_frame(f: Frame, scale: int, color=None, jitter=None, depth=None,
+                  mv=None) -> Frame:
     """A frame at scale x its size: colour (the given HR colour, or the bicubic jitter-aware
-    upscale of f's), alpha bicubic (clamped to [0, 1]), depth/vectors nearest surface of 4."""
+    upscale of f's), alpha bicubic (clamped to [0, 1]), depth/vectors (the given HR ones,
+    or the nearest surface of the 2x2 LR samples)."""
     import torch
 
     from fgcli.ops.sr import upsample_geometry, upscale
@@ -73,7 +65,8 @@ def upscale_frame(f: Frame, scale: int, color=None, jitter=None) -> Frame:
     jit = jitter if jitter is not None else (frame_jitter(f) or (0.0, 0.0))
     if color is None:
         color = upscale(f.color, scale, jit)
-    depth, mv, _ = upsample_geometry(f.depth, f.mv, scale, jit)
+    if depth is None:
+        depth, mv, _ = upsample_geometry(f.depth, f.mv, scale, jit)
     alpha = None
     if f.alpha is not None:
         alpha = upscale(f.alpha, scale, jit).clamp_(0.0, 1.0)
@@ -155,8 +148,8 @@ class Reconstructor:
                 self.cuts.append(n)
         facts["scene_cut"] = False
         ctx = run_stages(self.stages, ctx, timings, label=str(n), sync=self.sync, facts=facts)
-        hr = upscale_frame(f, self.scale, color=ctx["color"], jitter=jit)
-        hr = hr.replace(depth=ctx["depth"], mv=ctx["mv"])
+        hr = upscale_frame(f, self.scale, color=ctx["color"], jitter=jit,
+                           depth=ctx["depth"], mv=ctx["mv"])
         self.prev = f
         self.made[n] = hr
         while len(self.made) > self.keep:
@@ -193,12 +186,12 @@ def generate(pipeline_stages, has_sr: bool, rec: Reconstructor, f0: Frame | None
     return ctx
 
 
-def warn_no_jitter(rec: Reconstructor, where: str) -> None:
-    if rec.no_jitter:
-        n = rec.no_jitter
-        print(f"warning: {where}: {len(n)} frame(s) carry no jitter (fgen:jitter_x/y or a "
-              f"sidecar's jitter_px; first: frame {n[0]}): scored as jitter 0",
-              file=sys.stderr)
+def warn_no_jitter(frames: list, where: str) -> None:
+    """One warning per run for rendered frames read without jitter metadata."""
+    if frames:
+        print(f"warning: {where}: {len(frames)} input frame(s) carry no jitter "
+              f"(fgen:jitter_x/y, or jitter_px in cameras.json; first: frame {frames[0]}):"
+              " scored as jitter 0", file=sys.stderr)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -303,7 +296,7 @@ def evaluate_scaled(src: ScaledGTSource, pipelines: list, mode: str, progress: b
     def read(n):
         return src.input(n).to(device) if device != "cpu" else src.input(n)
 
-    built = []
+    built, chains = [], {}
     for p in pipelines:
         if mode not in p.modes:
             continue
@@ -311,8 +304,8 @@ def evaluate_scaled(src: ScaledGTSource, pipelines: list, mode: str, progress: b
                       "rec": Reconstructor(p, s, read, ins, backend, sync, scene_cuts),
                       "tm_ss": Timings(), "tm_ess": Timings(), "ss": Scores(),
                       "ess": Scores(), "all": Scores(), "state": RunState(),
-                      "tc": TemporalChange(src.fine_mv), "tc_ss": TemporalChange(src.fine_mv),
-                      "tc_ess": TemporalChange(src.fine_mv)})
+                      **{k: TemporalChange(src.fine_mv, chains=chains)
+                         for k in ("tc", "tc_ss", "tc_ess")}})
     if not built:
         raise UsageError(f"none of the pipelines supports mode '{mode}'")
     view = _HRView(src)
@@ -389,10 +382,7 @@ def evaluate_scaled(src: ScaledGTSource, pipelines: list, mode: str, progress: b
                   "per_frame": b["all"].per_frame})
         res[b["p"].label] = r
         no_jitter = no_jitter or b["rec"].no_jitter
-    if no_jitter:
-        print(f"warning: {src.rin.folder}: {len(no_jitter)} input frame(s) carry no jitter "
-              f"(fgen:jitter_x/y, or jitter_px in cameras.json; first: frame {no_jitter[0]}):"
-              " scored as jitter 0", file=sys.stderr)
+    warn_no_jitter(no_jitter, src.rin.folder)
     return {"mode": mode, "scale": s, "frames": len(events), "inputs": ins,
             "targets": [e[0] for e in events], "ss_frames": ss,
             "ess_frames": [t.target for t in tasks],

@@ -21,10 +21,14 @@ import math
 
 class TemporalChange:
     """Accumulates temporal_change over a stream of scored frames (in number order).
-    step_frame(k) -> a Frame whose `mv` points from k to k - 1 (and `depth`), or None."""
+    step_frame(k) -> a Frame whose `mv` points from k to k - 1 (and `depth`), or None.
+    chains: a dict shared by the accumulators of one evaluation (one per pipeline), so the
+    chained motion between two ground-truth frames is computed once."""
 
-    def __init__(self, step_frame, rel_tol: float = 0.05, max_gap: int = 8):
+    def __init__(self, step_frame, rel_tol: float = 0.05, max_gap: int = 8,
+                 chains: dict | None = None):
         self.step_frame, self.rel_tol, self.max_gap = step_frame, rel_tol, max_gap
+        self.chains = {} if chains is None else chains
         self.prev = None  # (number, error (3, H, W), gt depth)
         self.total, self.count, self.pairs = 0.0, 0, 0
 
@@ -62,7 +66,11 @@ class TemporalChange:
         err = srgb_oetf(out.detach().float().cpu()) - srgb_oetf(gt_color.detach().float().cpu())
         if self.prev is not None and self.prev[1].shape == err.shape:
             m, perr = self.prev
-            got = self._chain(n, m, gt)
+            if (n, m) not in self.chains:
+                while len(self.chains) > 4:  # (frames come in order: the last few pairs)
+                    self.chains.pop(next(iter(self.chains)))
+                self.chains[(n, m)] = self._chain(n, m, gt)
+            got = self.chains[(n, m)]
             if got is not None:
                 disp, ok = got
                 warped, inside = backward_warp(perr, disp, mode="bilinear")

@@ -468,3 +468,44 @@ def test_a_camera_cut_drops_the_history(lowres, tmp_path):
                           atol=2e-3 * max(1.0, float(src.color.max())))  # half-float output
     for n in got.numbers:
         assert torch.isfinite(got.read(n).color).all()
+
+
+@pytest.mark.parametrize("name", ["upscale", "taau", "mob-fgsr", "blend"])
+@pytest.mark.parametrize("size", [(1, 1), (3, 5), (8, 13)])
+def test_sr_stages_on_hard_frames(name, size):
+    """Every pipeline's --scale 2 path (its SR stages, or the upscale, then generation at
+    the output size) over the hard cases: 1x1 and odd sizes, NaN / huge colour, inf / NaN
+    depth, NaN / huge vectors, no jitter, an empty history, a cut between frames."""
+    from fgcli import pipeline as pl
+    from fgcli.frame import Frame
+    from fgcli.runner import RunState
+    from fgcli.sr import Reconstructor, generate
+
+    h, w = size
+    g = torch.Generator().manual_seed(h * 31 + w)
+    frames = []
+    for n in range(4):
+        color = torch.rand(3, h, w, generator=g) * (65504.0 if n == 2 else 1.0)
+        color[0, 0, 0] = float("nan")
+        depth = torch.rand(1, h, w, generator=g) + 0.5
+        depth[0, -1, -1] = float("inf")
+        if h * w > 1:
+            depth[0, 0, -1] = float("nan")
+        mv = torch.randn(2, h, w, generator=g) * (1e6 if n == 3 else 2.0)
+        mv[1, -1, 0] = float("nan")
+        header = {} if n == 1 else {"fgen:jitter_x": JITTERS[n][0],
+                                     "fgen:jitter_y": JITTERS[n][1]}
+        frames.append(Frame(number=2 * n, color=color, depth=depth, mv=mv, header=header))
+    p = pl.load(name)
+    for mode in p.modes:
+        rec = Reconstructor(p, 2, lambda k: frames[k // 2], [0, 2, 4, 6], "torch")
+        stages, state = p.build(mode), RunState()
+        for i in range(1, 4):
+            hr = rec.frame(2 * i)
+            assert hr.color.shape == (3, 2 * h, 2 * w) and torch.isfinite(hr.color).all()
+            assert hr.mv.shape == (2, 2 * h, 2 * w) and torch.isfinite(hr.mv).all()
+            ctx = generate(stages, p.has_sr, rec, frames[i - 1], frames[i], 0.5, mode, state,
+                           2, "torch")
+            assert ctx["color"].shape == (3, 2 * h, 2 * w)
+            assert torch.isfinite(ctx["color"]).all() and torch.isfinite(ctx["mv"]).all()
+        assert rec.no_jitter == [2]

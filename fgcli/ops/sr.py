@@ -299,8 +299,9 @@ def _weighted_samples(color_lr: torch.Tensor, s: int, jitter, weight):
 
 def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=True):
     """Warp the HR history to the current frame by the HR vectors: (colour (3,H,W), valid
-    (H,W) bool). Invalid: off-screen, no history, or the history's depth at the
-    reprojected place is a nearer surface (disocclusion: relative difference above t_d)."""
+    (H,W) bool, flat index (H*W,) of the history pixel nearest to each reprojected place).
+    Invalid: off-screen, no history, or the history's depth at the reprojected place is a
+    nearer surface (disocclusion: relative difference above t_d)."""
     _, H, W = depth_hr.shape
     dev = depth_hr.device
     gx = torch.arange(W, dtype=torch.float32, device=dev)[None, :].expand(H, W)
@@ -320,12 +321,13 @@ def _history(hist_color, hist_depth, depth_hr, mv_hr, t_d, filter_phases, cubic=
     # pixel, and only a surface nearer than all of them covered this one
     far = F.max_pool2d(torch.nan_to_num(hist_depth, nan=float("inf"))[None], 3, stride=1,
                        padding=1)[0]
-    hd = far.reshape(-1)[(iy * W + ix).reshape(-1)].reshape(H, W)
+    idx = (iy * W + ix).reshape(-1)
+    hd = far.reshape(-1)[idx].reshape(H, W)
     cd = depth_hr[0]
     # disoccluded: the previous frame shows a nearer surface there (something covered this
     # one); a farther one is the same surface seen from a camera that moved toward it
     covered = hd < cd * (1.0 - t_d)
-    return hc, inside & ~covered
+    return hc, inside & ~covered, idx
 
 
 def _gaussian_samples(color_lr: torch.Tensor, scale: int, jitter, sigma: float):
@@ -373,13 +375,9 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
         return spatial, torch.ones((H, W), dtype=torch.float32, device=color_lr.device)
     cur, wcur = _gaussian_samples(color_lr, s, jitter, sigma)
     mv = sanitize_mv(mv_hr)
-    hc, ok = _history(hist_color, hist_depth, depth_hr, mv, t_d, None,
-                      cubic=history_filter == "catmull-rom")
-    gx = torch.arange(W, device=mv.device)[None, :].expand(H, W)
-    gy = torch.arange(H, device=mv.device)[:, None].expand(H, W)
-    px = (gx + mv[0]).round().clamp(0, W - 1).long()
-    py = (gy + mv[1]).round().clamp(0, H - 1).long()
-    hw = hist_weight.reshape(-1)[(py * W + px).reshape(-1)].reshape(H, W)
+    hc, ok, near = _history(hist_color, hist_depth, depth_hr, mv, t_d, None,
+                            cubic=history_filter == "catmull-rom")
+    hw = hist_weight.reshape(-1)[near].reshape(H, W)
     hw = torch.where(ok, torch.nan_to_num(hw, nan=0.0).clamp_min(0.0), torch.zeros_like(hw))
     lo, hi = _box_at_nearest(color_lr, s, jitter, gamma)
     hcc = torch.maximum(torch.minimum(hc, hi), lo)
@@ -428,7 +426,7 @@ def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tens
                                      lambda d: 1.0 - b * d if d <= 1.0 else 0.0)
     cur = acc / (wsum if normalize else n).clamp_min(1e-6)
     cur = torch.where(n > 0, cur, spatial)
-    hc, ok = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
+    hc, ok, _ = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
     lo, hi = _box_at_nearest(color_lr, s, jitter)
     changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
     keep = 1.0 - a
