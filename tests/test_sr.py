@@ -164,22 +164,27 @@ def _converge(method, frames=12, shift_per_frame=0.0, **kw):
     return errs
 
 
+@pytest.mark.parametrize("method", ["taau", "mob"])
 @pytest.mark.parametrize("pan", [0.0, 0.75])
-def test_taau_accumulates_detail_beyond_one_frame(pan):
-    """On a still or panning view, TAAU's reconstruction from the jittered history ends up
-    closer to the HR signal (detail above the LR Nyquist limit) than the bicubic upscale of
-    the frame alone."""
-    errs = _converge("taau", shift_per_frame=pan)
+def test_history_accumulates_detail_beyond_one_frame(method, pan):
+    """On a still or panning view, TAAU's and Mob-FGSR's reconstructions from the jittered
+    history end up closer to the HR signal (detail above the LR Nyquist limit) than the
+    bicubic upscale of the frame alone."""
+    errs = _converge(method, shift_per_frame=pan)
     late = errs[6:]
     sr = sum(e[0] for e in late) / len(late)
     up = sum(e[1] for e in late) / len(late)
-    # still: ~0.67x the upscale's error; panning (every frame's history resampled): ~0.84x
-    assert sr < (0.8 if pan == 0 else 0.92) * up, (sr, up)
-    assert errs[0][0] == pytest.approx(errs[0][1], rel=1e-6)  # first frame: the upscale
+    # still: ~0.78x the upscale's error; panning (every frame's history resampled): ~0.87x
+    assert sr < (0.85 if pan == 0 else 0.93) * up, (sr, up)
+    # first frame: the upscale (mob-fgsr's with its 32-phase LUT)
+    assert errs[0][0] == pytest.approx(errs[0][1], rel=1e-6 if method == "taau" else 2e-2)
+
+
+PAPER = dict(samples="eq2", clamp="changed", reactive=None)  # the paper's exact reading
 
 
 def test_mobfgsr_sr_is_steady_where_the_upscale_flickers():
-    """Mob-FGSR's Eq. 2 blend (a = 0.34) averages the jittered frames: on a still view of
+    """The paper's reading of Mob-FGSR's Eq. 2 blend (a = 0.34) averages the jittered frames: on a still view of
     detail above the LR Nyquist limit, its output changes far less from frame to frame than
     the upscale of each jittered frame (which shows the jitter as flicker). (Its tent over
     the LR samples within one LR pixel does not recover that detail: not asserted.)"""
@@ -189,7 +194,7 @@ def test_mobfgsr_sr_is_steady_where_the_upscale_flickers():
         j = JITTERS[t % 16]
         lr = _lr(h, w, j, 0.0, DETAIL)
         depth, mv = torch.full((1, 2 * h, 2 * w), 5.0), torch.zeros(2, 2 * h, 2 * w)
-        out = S.mobfgsr_sr(lr, depth, mv, 2, j, st.get("c"), st.get("d"))
+        out = S.mobfgsr_sr(lr, depth, mv, 2, j, st.get("c"), st.get("d"), **PAPER)
         st["c"], st["d"] = out, depth
         up = S.upscale(lr, 2, j)
         if t >= 4:

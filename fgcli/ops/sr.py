@@ -343,16 +343,19 @@ def _gaussian_samples(color_lr: torch.Tensor, scale: int, jitter, sigma: float):
 def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, scale: int,
          jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
          hist_depth: torch.Tensor | None = None, hist_weight: torch.Tensor | None = None,
-         blend: float = 0.1, t_d: float = 0.02, history_filter: str = "catmull-rom",
-         sigma: float = 2.29, gamma: float | None = None, reactive: float | None = 0.25):
+         blend: float = 0.3, t_d: float = 0.02, history_filter: str = "catmull-rom",
+         sigma: float = 2.29, gamma: float | None = None, reactive: float | None = 0.25,
+         current: str = "catmull-rom"):
     """One frame of TAA upsampling (UE4-style TAAU with an accumulated sample weight, as
     FSR 2 keeps one). color_lr (3, h, w) jittered LR colour; depth_hr, mv_hr: the frame's
     geometry at HR (upsample_geometry); hist_*: the previous output, its depth and its
     accumulated weight (H, W) at HR (None: no history).
 
-    The current estimate is the 3x3 LR samples around each HR pixel weighted
-    exp(-sigma d^2) (d from the sample's jittered place to the pixel centre, HR pixels;
-    2.29: UE's Blackman-Harris fit). The history is reprojected by the vectors
+    The current estimate is the jitter-aware Catmull-Rom upscale with weight 1
+    (current="catmull-rom"), or the 3x3 LR samples around each HR pixel weighted
+    exp(-sigma d^2) with the sum of the weights as its weight (current="gaussian"; d from
+    the sample's jittered place to the pixel centre, HR pixels; 2.29: UE's Blackman-Harris
+    fit). The history is reprojected by the vectors
     (history_filter: catmull-rom or bilinear), rejected off-screen or where the previous
     frame shows a nearer surface (disocclusion, relative t_d), clamped to the colour range
     of the 3x3 LR samples around the pixel, and blended by weight:
@@ -369,11 +372,16 @@ def taau(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tensor, sc
     h, w = color_lr.shape[-2:]
     if history_filter not in ("catmull-rom", "bilinear"):
         raise ValueError(f"history_filter must be catmull-rom or bilinear, got {history_filter!r}")
+    if current not in ("catmull-rom", "gaussian"):
+        raise ValueError(f"current must be catmull-rom or gaussian, got {current!r}")
     spatial = upscale(color_lr, s, jitter)
     H, W = h * s, w * s
     if hist_color is None or hist_depth is None or hist_weight is None:
         return spatial, torch.ones((H, W), dtype=torch.float32, device=color_lr.device)
-    cur, wcur = _gaussian_samples(color_lr, s, jitter, sigma)
+    if current == "gaussian":
+        cur, wcur = _gaussian_samples(color_lr, s, jitter, sigma)
+    else:
+        cur, wcur = spatial, torch.ones((H, W), dtype=torch.float32, device=color_lr.device)
     mv = sanitize_mv(mv_hr)
     hc, ok, near = _history(hist_color, hist_depth, depth_hr, mv, t_d, None,
                             cubic=history_filter == "catmull-rom")
@@ -402,38 +410,56 @@ def mobfgsr_sr(color_lr: torch.Tensor, depth_hr: torch.Tensor, mv_hr: torch.Tens
                scale: int, jitter=(0.0, 0.0), hist_color: torch.Tensor | None = None,
                hist_depth: torch.Tensor | None = None, a: float = SR_A, b: float = SR_B,
                t_d: float = 0.02, t_b: float = 0.13, phases: int = LUT_PHASES,
-               normalize: bool = True, reactive: float | None = None):
+               normalize: bool = True, reactive: float | None = 0.25,
+               samples: str = "lut", clamp: str = "always"):
     """Mob-FGSR super resolution of one rendered frame (paper Sec. 3.5, Eq. 2).
 
     The HR history is warped by the vectors with the Catmull-Rom LUT (``phases``
-    sub-pixel phases, 4x4 taps), rejected where the previous frame shows a nearer surface
-    (disocclusion, relative t_d) or off-screen, and where its brightness differs from the current frame's by more than t_b
-    (the paper's T_B) clamped to the colour AABB of the 3x3 LR samples around the pixel.
-    Eq. 2: q = a * sum_s (1 - b d_s) s / n + (1 - a) q_w over the LR samples s within one
-    LR pixel of q (d_s in LR pixels). normalize: divide by the sum of the weights instead
-    of the sample count n (the paper's n darkens the image by the mean weight; the public
-    code normalises). Where the history is rejected, and on the first frame: the
-    Catmull-Rom LUT resampling of the jittered input. Returns (3, s*h, s*w)."""
+    sub-pixel phases, 4x4 taps) and rejected where the previous frame shows a nearer
+    surface (disocclusion, relative t_d) or off-screen. It is clamped to the colour AABB of
+    the 3x3 LR samples around the pixel: everywhere (clamp="always", as TAA clamps) or only
+    where its brightness differs from the current frame's by more than t_b (clamp="changed",
+    the paper's T_B). Then Eq. 2: q = a * c + (1 - a) q_w, with the current frame's
+    estimate c either the paper's samples="eq2": sum_s (1 - b d_s) s / n over the LR samples
+    s within one LR pixel of q (d_s in LR pixels; normalize: divide by the sum of the
+    weights instead of the sample count n, which darkens the image by the mean weight), or
+    samples="lut": the Catmull-Rom LUT resampling of the jittered input. reactive (an fgen
+    addition, None: off): the history's share falls to 0 as its brightness difference to c
+    exceeds `reactive` x the spread of the 3x3 samples by 0.1 (shading the vectors do not
+    explain: animated textures, reflections, translucency). Where the history is rejected,
+    and on the first frame: the Catmull-Rom LUT resampling. Returns (3, s*h, s*w)."""
     from fgcli.ops.blend import brightness_difference
 
     color_lr = sanitize_values(check_tensor(color_lr, "color", 3, allow_batch=False))
     s = check_scale(scale)
-    h, w = color_lr.shape[-2:]
+    if samples not in ("lut", "eq2"):
+        raise ValueError(f"samples must be lut or eq2, got {samples!r}")
+    if clamp not in ("always", "changed"):
+        raise ValueError(f"clamp must be always or changed, got {clamp!r}")
     spatial = upscale(color_lr, s, jitter, phases=phases)
     if hist_color is None or hist_depth is None:
         return spatial
-    acc, wsum, n = _weighted_samples(color_lr, s, jitter,
-                                     lambda d: 1.0 - b * d if d <= 1.0 else 0.0)
-    cur = acc / (wsum if normalize else n).clamp_min(1e-6)
-    cur = torch.where(n > 0, cur, spatial)
+    if samples == "eq2":
+        acc, wsum, n = _weighted_samples(color_lr, s, jitter,
+                                         lambda d: 1.0 - b * d if d <= 1.0 else 0.0)
+        cur = acc / (wsum if normalize else n).clamp_min(1e-6)
+        cur = torch.where(n > 0, cur, spatial)
+    else:
+        cur = spatial
     hc, ok, _ = _history(hist_color, hist_depth, depth_hr, sanitize_mv(mv_hr), t_d, phases)
     lo, hi = _box_at_nearest(color_lr, s, jitter)
-    changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
     keep = 1.0 - a
-    if reactive is not None:  # fgen: as taau's reactive history drop
+    if reactive is not None:
         diff = brightness_difference(hc.clamp(0, BIG), cur.clamp(0, BIG))[0]
         spread = brightness_difference(hi.clamp(0, BIG), lo.clamp(0, BIG))[0]
         keep = keep * (1.0 - (diff - spread * reactive).clamp_min(0.0) / 0.1).clamp(0.0, 1.0)
-    hc = torch.where(changed[None], torch.maximum(torch.minimum(hc, hi), lo), hc)
-    out = (a * cur + keep * hc) / (a + keep)
+    hcc = torch.maximum(torch.minimum(hc, hi), lo)
+    if clamp == "always":
+        hc = hcc
+    else:
+        changed = brightness_difference(hc.clamp(0, BIG), spatial.clamp(0, BIG))[0] > t_b
+        hc = torch.where(changed[None], hcc, hc)
+    # a = 0 with the history dropped leaves no weight: the current estimate
+    den = torch.as_tensor(a + keep, dtype=torch.float32)
+    out = torch.where(den > 0, (a * cur + keep * hc) / den.clamp_min(1e-12), cur)
     return sanitize_values(torch.where(ok[None], out, spatial))
