@@ -560,7 +560,8 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
     wkw = {"layout": out_layout, "half": half, "compression": compression}
     try:
         with torch.inference_mode():
-            for n, on in copies:
+            def copy_out(n: int, on: int) -> None:
+                nonlocal written, skipped_existing
                 path = out.path_for(on)
                 if out.should_write(path):
                     f = cache.get(n) if rec is None else rec.frame(n, timings)
@@ -578,6 +579,10 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                 else:
                     skipped_existing += 1
                 done(1)
+
+            # the copies go out in frame order between the jobs that read the same frames,
+            # so that a reconstruction (--scale) runs through the sequence once
+            pending = list(copies)
             write = [i for i in mine if out.should_write(out.path_for(jobs[i][3]))]
             skipped_existing += len(mine) - len(write)
             done(len(mine) - len(write))
@@ -587,6 +592,8 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
             replayed = len(todo) - len(write)
             for i, ji in enumerate(todo):
                 a, b, t, on, prev_t = jobs[ji]
+                while pending and pending[0][0] <= b:
+                    copy_out(*pending.pop(0))
                 f1 = cache.get(b)
                 f0 = cache.get(a) if a is not None else None
                 # decode the next jobs' frames while this one computes (as many as the
@@ -627,6 +634,8 @@ def _run(reader, out, pipeline: Pipeline, mode: str, plan: dict, cache: FrameCac
                                           "fgen:source_frames": src})
                 written += 1
                 done(1)
+            for n, on in pending:
+                copy_out(n, on)
     finally:
         cache.close()  # nothing more to read
         threads.restore()  # the writes still queued get every core

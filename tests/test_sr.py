@@ -343,6 +343,27 @@ def test_taau_chunks_are_byte_identical_to_one_run(lowres, tmp_path):
     assert_same_frames(ref, out)
 
 
+@pytest.mark.parametrize("mode", ["interpolate", "extrapolate"])
+def test_emit_all_reconstructs_each_rendered_frame_once(lowres, tmp_path, monkeypatch, mode):
+    """With --emit all the copies of the rendered frames go out between the generated
+    frames that read them: the recurrent reconstruction runs through the sequence once."""
+    from fgcli.io.options import open_input
+    from fgcli.sr import Reconstructor
+
+    made = []
+    real = Reconstructor._make
+
+    def counting(self, n, timings):
+        made.append(n)
+        return real(self, n, timings)
+
+    monkeypatch.setattr(Reconstructor, "_make", counting)
+    _run([mode, str(lowres / "lowres"), str(tmp_path / "o"), "--scale", "2", "--pipeline",
+          "taau", "--emit", "all", "--no-progress"])
+    numbers = open_input(str(lowres / "lowres")).numbers
+    assert made == list(numbers)
+
+
 def _without_jitter(src, dst):
     """A copy of a sequence whose headers carry no fgen:jitter_x/y."""
     from fgcli.io import exr
